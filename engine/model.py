@@ -1,0 +1,130 @@
+"""Engine inputs: the block model, materials, loads and analysis controls as plain data.
+
+`schemas/` turns a user's scene JSON into a :class:`Model`; the engine never sees JSON.
+Units are SI; angles inside the engine are radians (names end in `_rad`).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Literal
+
+import numpy as np
+
+from engine.geometry import Polyhedron
+
+
+@dataclass(frozen=True)
+class Material:
+    """Intact rock: density (kg/m³), Young's modulus (Pa), Poisson's ratio (-)."""
+
+    density: float = 2600.0
+    young_modulus: float = 10e9
+    poisson_ratio: float = 0.25
+
+
+@dataclass(frozen=True)
+class JointMaterial:
+    """Joint strength: friction angle (rad), cohesion (Pa), tensile strength (Pa)."""
+
+    friction_angle_rad: float = np.radians(30.0)
+    cohesion: float = 0.0
+    tensile_strength: float = 0.0
+
+
+@dataclass(frozen=True)
+class JointPlane:
+    """One joint plane for block cutting.
+
+    `normal (3,)` unit normal, `point (3,)` a point on the plane, `tag` the joint id
+    the faces it makes will carry, `extent (k, 3)` a convex polygon in the plane that
+    bounds a non-persistent joint (None: persistent, cuts everything it crosses).
+    """
+
+    normal: np.ndarray
+    point: np.ndarray
+    tag: int = 0
+    extent: np.ndarray | None = None
+
+
+@dataclass
+class Block:
+    """One block of the model: geometry, material index, fixed flag, initial velocity.
+
+    `velocity (6,)`: translation (m/s) then spin (rad/s) about the centroid.
+    """
+
+    polyhedron: Polyhedron
+    name: str = ""
+    material: int = 0
+    fixed: bool = False
+    velocity: np.ndarray = field(default_factory=lambda: np.zeros(6))
+
+
+@dataclass(frozen=True)
+class PointLoad:
+    """A force `force (3,)` N applied at `point (3,)` m of block `block`."""
+
+    block: int
+    point: np.ndarray
+    force: np.ndarray
+
+
+@dataclass(frozen=True)
+class FixedPoint:
+    """A point `point (3,)` of block `block` held in place by a stiff penalty spring."""
+
+    block: int
+    point: np.ndarray
+
+
+@dataclass(frozen=True)
+class AnalysisControls:
+    """How to run: time, penalties, iteration limits, block model.
+
+    `penalty` is the normal stiffness of one contact spring (N/m); the shear spring
+    is `shear_penalty_ratio * penalty`. `dynamic_ratio` is k01 (1 dynamic, 0 static).
+    `max_displacement_ratio` limits the largest displacement in a step to this fraction
+    of the model size (paper eq. 50 uses a fraction of the smallest edge instead).
+    """
+
+    duration: float = 1.0
+    time_step: float = 1e-3
+    penalty: float = 1e10
+    shear_penalty_ratio: float = 1.0
+    record_interval: int = 10
+    dynamic_ratio: float = 1.0
+    block_model: Literal["rigid", "elastic"] = "rigid"
+    max_displacement_ratio: float = 0.01
+    max_open_close_iterations: int = 8
+    min_time_step: float = 1e-7
+    fixed_point_penalty: float | None = None
+    record_contacts: bool = True
+
+
+@dataclass
+class Model:
+    """Everything the engine needs to run a scene.
+
+    `joint_material_of_tag` maps a face tag (joint id) to a joint material index;
+    `pair_joint_material` maps an unordered block-index pair `(min, max)` to one and
+    wins over tags; `default_joint_material` applies everywhere else.
+    """
+
+    blocks: list[Block]
+    materials: list[Material] = field(default_factory=lambda: [Material()])
+    joint_materials: list[JointMaterial] = field(default_factory=lambda: [JointMaterial()])
+    default_joint_material: int = 0
+    joint_material_of_tag: dict[int, int] = field(default_factory=dict)
+    pair_joint_material: dict[tuple[int, int], int] = field(default_factory=dict)
+    gravity: np.ndarray = field(default_factory=lambda: np.array([0.0, 0.0, -9.81]))
+    point_loads: list[PointLoad] = field(default_factory=list)
+    fixed_points: list[FixedPoint] = field(default_factory=list)
+    controls: AnalysisControls = field(default_factory=AnalysisControls)
+
+    @property
+    def scale(self) -> float:
+        """Model size (m): the largest edge of the bounding box of all blocks."""
+        lo = np.min([b.polyhedron.bounds[0] for b in self.blocks], axis=0)
+        hi = np.max([b.polyhedron.bounds[1] for b in self.blocks], axis=0)
+        return float(np.max(hi - lo))
