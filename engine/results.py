@@ -1,0 +1,686 @@
+"""Run results as one HDF5 file: an incremental writer (a Recorder) and a reader.
+
+The writer appends every recorded step to resizable, chunked, gzip+shuffle datasets in
+HDF5 single-writer/multiple-reader (SWMR) mode and flushes, so a run that is killed keeps
+every flushed step and its status stays "running". Layout (K steps, n blocks, V surface
+vertices, F faces, C contacts in all):
+
+- root attrs: `format` "polydda-result", `format_version`, `engine_version`,
+  `schema_version` (when known), `status`, `message`, `summary` (JSON text, set by end)
+- `/scene`: `json` (scalar text) with attr `sha256` (hex digest of the UTF-8 text)
+- `/blocks`: `vertices (V,3)` initial surface vertices of all blocks, `vertex_offsets (n+1,)`,
+  `face_offsets (F+1,)`, `face_connectivity` global indices into `/blocks/vertices`,
+  `face_block_offsets (n+1,)` (block b owns faces `face_block_offsets[b]:[b+1]`),
+  `face_tags (F,)`, `names (n,)`, `material (n,)`, `fixed (n,)`, `centroid (n,3)`,
+  `volume (n,)`
+- `/steps`: `step`, `time`, `dt`, `open_close_iterations`, `max_penetration` `(K,)` and
+  `energies/<name> (K,)` J
+- `/history`: `centroid (K,n,3)`, `rotation (K,n,3)`, `affine (K,n,3,3)`,
+  `velocity (K,n,12)`, `stress (K,n,6)`; vertices are `centroid + affine @ (X0 - c0)`
+- `/contacts` (attr `recorded`): `step_offsets (K+1,)`, step k is rows
+  `step_offsets[k]:step_offsets[k+1]` of `block_i`, `block_j`, `kind`, `mode`,
+  `point_i (C,3)`, `point_j`, `normal`, `tangent`, `gap (C,)`, `normal_force (C,)`,
+  `shear_force (C,3)`
+- `/VTKHDF`: VTKHDF 2.2 temporal PolyData for ParaView (block faces as polygons, points
+  written per step, connectivity shared by all steps; point data `block_id`,
+  `displacement`, `velocity`; cell data `block_id`, `face_tag`)
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import logging
+import os
+from collections.abc import Iterator
+from dataclasses import dataclass
+from pathlib import Path
+from types import TracebackType
+from typing import Any
+
+import h5py
+import numpy as np
+
+from engine.frame import Frame
+from engine.model import Model
+
+log = logging.getLogger(__name__)
+
+FORMAT = "polydda-result"
+FORMAT_VERSION = 1
+VTKHDF_VERSION = (2, 2)
+STATUSES = ("completed", "failed", "cancelled", "stopped")
+ENERGY_NAMES = (
+    "kinetic", "elastic", "contact", "gravity_work", "friction_dissipation", "external_work",
+)
+#: HDF5 file-format bounds: 1.10 is the oldest that has SWMR; ParaView >= 5.x reads it
+LIBVER = ("v110", "v110")
+_CHUNK_TARGET = 256 * 1024  # bytes per chunk aimed at
+_CHUNK_MAX = 1024 * 1024
+_STR = h5py.string_dtype("utf-8")
+_HISTORY_SHAPES = {"centroid": (3,), "rotation": (3,), "affine": (3, 3),
+                   "velocity": (12,), "stress": (6,)}
+_CONTACT_FIELDS: dict[str, tuple[tuple[int, ...], type]] = {
+    "block_i": ((), np.int32), "block_j": ((), np.int32), "kind": ((), np.int8),
+    "mode": ((), np.int8), "point_i": ((3,), np.float64), "point_j": ((3,), np.float64),
+    "normal": ((3,), np.float64), "tangent": ((3,), np.float64), "gap": ((), np.float64),
+    "normal_force": ((), np.float64), "shear_force": ((3,), np.float64),
+}
+
+
+def _engine_version() -> str:
+    try:
+        from importlib.metadata import version
+
+        return version("polydda")
+    except Exception:  # not installed (source checkout)
+        return "unknown"
+
+
+def _json_default(obj: Any) -> Any:
+    """JSON encoding of numpy scalars and arrays (summaries carry them)."""
+    if isinstance(obj, np.generic):
+        return obj.item()
+    if isinstance(obj, np.ndarray):
+        return obj.tolist()
+    if isinstance(obj, Path):
+        return str(obj)
+    raise TypeError(f"{type(obj).__name__} is not JSON serializable")
+
+
+def _chunk_rows(row_bytes: int, rows_per_step: int = 1) -> int:
+    """Rows per chunk along the growing axis: whole steps when they fit, ~256 KiB."""
+    step_bytes = max(1, row_bytes * rows_per_step)
+    if step_bytes <= _CHUNK_MAX:
+        return rows_per_step * max(1, _CHUNK_TARGET // step_bytes)
+    return max(1, _CHUNK_MAX // max(1, row_bytes))
+
+
+# --------------------------------------------------------------------------- writer
+
+
+@dataclass
+class _Static:
+    """Initial geometry of all blocks, flattened (what the writer and plots need)."""
+
+    vertices: np.ndarray  # (V, 3)
+    vertex_offsets: np.ndarray  # (n+1,)
+    vertex_block: np.ndarray  # (V,) block of each vertex
+    face_offsets: np.ndarray  # (F+1,)
+    face_connectivity: np.ndarray  # global vertex ids
+    face_block_offsets: np.ndarray  # (n+1,)
+    face_tags: np.ndarray  # (F,)
+    centroid: np.ndarray  # (n, 3) initial centroids
+
+
+def _flatten_model(model: Model) -> _Static:
+    """Surface vertices and faces of all blocks renumbered into global arrays."""
+    verts, vcount, fptr, fconn, fcount, tags, cents = [], [], [], [], [], [], []
+    base = 0
+    for block in model.blocks:
+        poly = block.polyhedron
+        used = poly.surface_vertex_ids
+        remap = np.full(len(poly.vertices), -1, dtype=np.int64)
+        remap[used] = np.arange(len(used)) + base
+        verts.append(poly.vertices[used])
+        vcount.append(len(used))
+        fptr.append(np.diff(poly.face_indptr))
+        fconn.append(remap[poly.face_indices])
+        fcount.append(poly.n_faces)
+        tags.append(np.asarray(poly.face_tags, dtype=np.int64))
+        cents.append(poly.centroid)
+        base += len(used)
+    n = len(model.blocks)
+
+    def offsets(counts: list[int] | np.ndarray) -> np.ndarray:
+        out = np.zeros(len(counts) + 1, dtype=np.int64)
+        np.cumsum(counts, out=out[1:])
+        return out
+
+    face_sizes = np.concatenate(fptr) if fptr else np.zeros(0, np.int64)
+    vo = offsets(vcount)
+    return _Static(
+        vertices=np.concatenate(verts) if verts else np.zeros((0, 3)),
+        vertex_offsets=vo,
+        vertex_block=np.repeat(np.arange(n), np.diff(vo)),
+        face_offsets=offsets(face_sizes),
+        face_connectivity=np.concatenate(fconn) if fconn else np.zeros(0, np.int64),
+        face_block_offsets=offsets(fcount),
+        face_tags=np.concatenate(tags) if tags else np.zeros(0, np.int64),
+        centroid=np.array(cents, dtype=float).reshape(n, 3),
+    )
+
+
+def point_velocities(
+    points: np.ndarray, centroids: np.ndarray, velocity: np.ndarray
+) -> np.ndarray:
+    """Velocity `(p, 3)` of points `(p, 3)` from their block's `centroids (p, 3)`, `(p, 12)` rates.
+
+    `v + ω × r + Ė r` with `r = x - c` and Ė the symmetric strain rate (engineering shears).
+    """
+    r = points - centroids
+    v = velocity[:, :3] + np.cross(velocity[:, 3:6], r)
+    e = velocity[:, 6:12]
+    v[:, 0] += e[:, 0] * r[:, 0] + 0.5 * (e[:, 5] * r[:, 1] + e[:, 4] * r[:, 2])
+    v[:, 1] += e[:, 1] * r[:, 1] + 0.5 * (e[:, 5] * r[:, 0] + e[:, 3] * r[:, 2])
+    v[:, 2] += e[:, 2] * r[:, 2] + 0.5 * (e[:, 4] * r[:, 0] + e[:, 3] * r[:, 1])
+    return v
+
+
+def transform_points(
+    x0: np.ndarray, c0: np.ndarray, centroids: np.ndarray, affine: np.ndarray
+) -> np.ndarray:
+    """Moved points `c + A (X0 - c0)` `(p, 3)`; every argument is per point (`affine (p,3,3)`)."""
+    return centroids + np.einsum("pij,pj->pi", affine, x0 - c0)
+
+
+class ResultWriter:
+    """Writes one run to one HDF5 file as it goes; implements the :class:`Recorder` protocol.
+
+    `flush_every` steps between flushes (1: every step durable when `record` returns).
+    The file must not exist unless `overwrite`; a file that `end` closed is never reopened.
+    """
+
+    def __init__(
+        self,
+        path: str | os.PathLike[str],
+        *,
+        compression: str | None = "gzip",
+        compression_level: int = 4,
+        record_contacts: bool = True,
+        flush_every: int = 1,
+        overwrite: bool = False,
+        schema_version: str | None = None,
+    ) -> None:
+        if compression not in ("gzip", None):
+            raise ValueError(f"compression must be 'gzip' or None (ParaView reads both), "
+                             f"not {compression!r}")
+        if flush_every < 1:
+            raise ValueError("flush_every must be >= 1")
+        self.path = Path(path)
+        self.compression = compression
+        self.compression_level = int(compression_level)
+        self.record_contacts = record_contacts
+        self.flush_every = int(flush_every)
+        self.overwrite = overwrite
+        self.schema_version = schema_version
+        self.n_recorded = 0
+        self._file: h5py.File | None = None
+        self._static: _Static | None = None
+        self._ended = False
+        self._n_contacts = 0
+        self._ignored_energies: set[str] = set()
+
+    # --- helpers
+    def _ds(self, group: h5py.Group, name: str, tail: tuple[int, ...], dtype: Any,
+            rows_per_step: int = 1, compress: bool = True) -> h5py.Dataset:
+        """An empty dataset growing along axis 0, `(0, *tail)`."""
+        row_bytes = int(np.prod(tail, dtype=np.int64)) * np.dtype(dtype).itemsize
+        rows = _chunk_rows(row_bytes, rows_per_step)
+        tail_chunk = tail
+        if row_bytes > _CHUNK_MAX:  # one row too big (huge n): split the block axis as well
+            tail_chunk = (max(1, _CHUNK_MAX // (row_bytes // tail[0])), *tail[1:])
+        kw: dict[str, Any] = {}
+        if compress and self.compression:
+            kw = {"compression": "gzip", "compression_opts": self.compression_level,
+                  "shuffle": True}
+        return group.create_dataset(name, shape=(0, *tail), maxshape=(None, *tail),
+                                    dtype=dtype, chunks=(rows, *tail_chunk), **kw)
+
+    @staticmethod
+    def _append(ds: h5py.Dataset, values: np.ndarray) -> None:
+        n = ds.shape[0]
+        values = np.asarray(values)
+        if values.ndim == ds.ndim - 1:
+            values = values[None]
+        ds.resize(n + len(values), axis=0)
+        if len(values):
+            ds[n:] = values
+
+    # --- Recorder protocol
+    def begin(self, model: Model, scene_json: str | None = None) -> None:
+        """Create the file, write the initial geometry and scene, switch to SWMR mode."""
+        if self._file is not None or self._ended:
+            raise RuntimeError("begin() was already called on this writer")
+        if self.path.exists() and not self.overwrite:
+            raise FileExistsError(f"{self.path} exists; results are never rewritten in place")
+        self.path.parent.mkdir(parents=True, exist_ok=True)
+        f = h5py.File(self.path, "w", libver=LIBVER)
+        self._file = f
+        st = self._static = _flatten_model(model)
+        n, nv = len(model.blocks), len(st.vertices)
+
+        schema = self.schema_version
+        if schema is None and scene_json:
+            try:
+                parsed = json.loads(scene_json)
+                if isinstance(parsed, dict) and "schema_version" in parsed:
+                    schema = str(parsed["schema_version"])
+            except ValueError:
+                pass
+        f.attrs["format"] = FORMAT
+        f.attrs["format_version"] = FORMAT_VERSION
+        f.attrs["engine_version"] = _engine_version()
+        if schema is not None:
+            f.attrs["schema_version"] = schema
+        f.attrs["status"] = "running"
+        f.attrs["message"] = ""
+
+        g = f.create_group("scene")
+        if scene_json is not None:
+            g.create_dataset("json", data=scene_json, dtype=_STR)
+            g.attrs["sha256"] = hashlib.sha256(scene_json.encode("utf-8")).hexdigest()
+
+        g = f.create_group("blocks")
+        g["vertices"] = st.vertices
+        g["vertex_offsets"] = st.vertex_offsets
+        g["face_offsets"] = st.face_offsets
+        g["face_connectivity"] = st.face_connectivity
+        g["face_connectivity"].attrs["indexing"] = "global into /blocks/vertices"
+        g["face_block_offsets"] = st.face_block_offsets
+        g["face_tags"] = st.face_tags
+        g.create_dataset("names", data=[b.name for b in model.blocks], dtype=_STR)
+        g["material"] = np.array([b.material for b in model.blocks], dtype=np.int64)
+        g["fixed"] = np.array([b.fixed for b in model.blocks], dtype=bool)
+        g["centroid"] = st.centroid
+        g["volume"] = np.array([b.polyhedron.volume for b in model.blocks], dtype=float)
+
+        g = f.create_group("steps")
+        self._ds(g, "step", (), np.int64, compress=False)
+        self._ds(g, "time", (), np.float64, compress=False)
+        self._ds(g, "dt", (), np.float64, compress=False)
+        self._ds(g, "open_close_iterations", (), np.int64, compress=False)
+        self._ds(g, "max_penetration", (), np.float64, compress=False)
+        e = g.create_group("energies")
+        for name in ENERGY_NAMES:
+            self._ds(e, name, (), np.float64, compress=False)
+
+        g = f.create_group("history")
+        for name, tail in _HISTORY_SHAPES.items():
+            self._ds(g, name, (n, *tail), np.float64)
+
+        g = f.create_group("contacts")
+        g.attrs["recorded"] = bool(self.record_contacts)
+        so = self._ds(g, "step_offsets", (), np.int64, compress=False)
+        self._append(so, np.zeros(1, np.int64))
+        if self.record_contacts:
+            for name, (tail, dtype) in _CONTACT_FIELDS.items():
+                self._ds(g, name, tail, dtype)
+
+        self._begin_vtkhdf(f, n, nv)
+        f.flush()
+        f.swmr_mode = True
+
+    def _begin_vtkhdf(self, f: h5py.File, n: int, nv: int) -> None:
+        """Static part of the VTKHDF temporal PolyData group and its per-step datasets."""
+        st = self._static
+        assert st is not None
+        v = f.create_group("VTKHDF")
+        v.attrs["Version"] = np.array(VTKHDF_VERSION, dtype=np.int64)
+        v.attrs.create("Type", np.bytes_("PolyData"), dtype=h5py.string_dtype("ascii", 8))
+        self._ds(v, "NumberOfPoints", (), np.int64, compress=False)
+        self._ds(v, "Points", (3,), np.float64, rows_per_step=max(nv, 1))
+        nf = len(st.face_offsets) - 1
+        for name in ("Vertices", "Lines", "Polygons", "Strips"):
+            c = v.create_group(name)
+            self._ds(c, "NumberOfCells", (), np.int64, compress=False)
+            self._ds(c, "NumberOfConnectivityIds", (), np.int64, compress=False)
+            if name == "Polygons":
+                c["Offsets"] = st.face_offsets
+                c["Connectivity"] = st.face_connectivity
+            else:
+                c["Offsets"] = np.zeros(1, np.int64)
+                c["Connectivity"] = np.zeros(0, np.int64)
+        pd = v.create_group("PointData")
+        pd["block_id"] = st.vertex_block.astype(np.int32)
+        self._ds(pd, "displacement", (3,), np.float64, rows_per_step=max(nv, 1))
+        self._ds(pd, "velocity", (3,), np.float64, rows_per_step=max(nv, 1))
+        cd = v.create_group("CellData")
+        cd["block_id"] = np.repeat(np.arange(n), np.diff(st.face_block_offsets)).astype(np.int32)
+        cd["face_tag"] = st.face_tags
+        s = v.create_group("Steps")
+        s.attrs["NSteps"] = np.int64(0)
+        self._ds(s, "Values", (), np.float64, compress=False)
+        self._ds(s, "PartOffsets", (), np.int64, compress=False)
+        self._ds(s, "NumberOfParts", (), np.int64, compress=False)
+        self._ds(s, "PointOffsets", (), np.int64, compress=False)
+        self._ds(s, "CellOffsets", (4,), np.int64, compress=False)
+        self._ds(s, "ConnectivityIdOffsets", (4,), np.int64, compress=False)
+        po = s.create_group("PointDataOffsets")
+        for name in ("block_id", "displacement", "velocity"):
+            self._ds(po, name, (), np.int64, compress=False)
+        co = s.create_group("CellDataOffsets")
+        for name in ("block_id", "face_tag"):
+            self._ds(co, name, (), np.int64, compress=False)
+        self._nf = nf
+
+    def record(self, frame: Frame) -> None:
+        """Append one step to every dataset; flush (durable) every `flush_every` steps."""
+        f, st = self._file, self._static
+        if f is None or st is None or self._ended:
+            raise RuntimeError("record() needs begin() first and no end() yet")
+        n = len(st.centroid)
+        arrays = {
+            "centroid": np.asarray(frame.centroids, float),
+            "rotation": np.asarray(frame.rotation, float),
+            "affine": np.asarray(frame.affine, float),
+            "velocity": np.asarray(frame.velocity, float),
+            "stress": np.asarray(frame.stress, float),
+        }
+        for name, tail in _HISTORY_SHAPES.items():
+            if arrays[name].shape != (n, *tail):
+                raise ValueError(f"frame.{name} has shape {arrays[name].shape}, "
+                                 f"expected {(n, *tail)}")
+        k = self.n_recorded
+        hist = f["history"]
+        for name, a in arrays.items():
+            self._append(hist[name], a)
+
+        # contacts
+        g = f["contacts"]
+        cs = frame.contacts
+        c = 0 if cs is None or not self.record_contacts else len(cs)
+        if self.record_contacts and c:
+            assert cs is not None
+            vals = {name: getattr(cs, name) for name in _CONTACT_FIELDS
+                    if name not in ("normal_force", "shear_force")}
+            vals["normal_force"] = (np.full(c, np.nan) if frame.normal_force is None
+                                    else np.asarray(frame.normal_force, float))
+            vals["shear_force"] = (np.full((c, 3), np.nan) if frame.shear_force is None
+                                   else np.asarray(frame.shear_force, float))
+            for name, (tail, dtype) in _CONTACT_FIELDS.items():
+                a = np.asarray(vals[name]).astype(dtype, copy=False).reshape(c, *tail)
+                self._append(g[name], a)
+        self._n_contacts += c
+        self._append(g["step_offsets"], np.array([self._n_contacts], np.int64))
+
+        # VTKHDF: points, point displacement and velocity
+        vb = st.vertex_block
+        cent, aff = arrays["centroid"], arrays["affine"]
+        pts = transform_points(st.vertices, st.centroid[vb], cent[vb], aff[vb])
+        vel = point_velocities(pts, cent[vb], arrays["velocity"][vb])
+        nv = len(pts)
+        v = f["VTKHDF"]
+        self._append(v["Points"], pts)
+        self._append(v["PointData/displacement"], pts - st.vertices)
+        self._append(v["PointData/velocity"], vel)
+        self._append(v["NumberOfPoints"], np.array([nv]))
+        for name in ("Vertices", "Lines", "Strips"):
+            self._append(v[name]["NumberOfCells"], np.zeros(1, np.int64))
+            self._append(v[name]["NumberOfConnectivityIds"], np.zeros(1, np.int64))
+        self._append(v["Polygons/NumberOfCells"], np.array([self._nf]))
+        self._append(v["Polygons/NumberOfConnectivityIds"],
+                     np.array([len(st.face_connectivity)]))
+        s = v["Steps"]
+        self._append(s["Values"], np.array([frame.time], float))
+        self._append(s["PartOffsets"], np.array([k]))
+        self._append(s["NumberOfParts"], np.array([1]))
+        self._append(s["PointOffsets"], np.array([k * nv]))
+        self._append(s["CellOffsets"], np.zeros((1, 4), np.int64))
+        self._append(s["ConnectivityIdOffsets"], np.zeros((1, 4), np.int64))
+        self._append(s["PointDataOffsets/block_id"], np.zeros(1, np.int64))
+        self._append(s["PointDataOffsets/displacement"], np.array([k * nv]))
+        self._append(s["PointDataOffsets/velocity"], np.array([k * nv]))
+        self._append(s["CellDataOffsets/block_id"], np.zeros(1, np.int64))
+        self._append(s["CellDataOffsets/face_tag"], np.zeros(1, np.int64))
+        s.attrs.modify("NSteps", np.int64(k + 1))
+
+        # per-step scalars; `step` last: a reader counts complete steps from it
+        sg = f["steps"]
+        for name in ENERGY_NAMES:
+            self._append(sg["energies"][name], np.array([frame.energies.get(name, np.nan)]))
+        extra = set(frame.energies) - set(ENERGY_NAMES) - self._ignored_energies
+        if extra:
+            log.warning("energies %s are not in the result layout and are not stored",
+                        sorted(extra))
+            self._ignored_energies |= extra
+        self._append(sg["time"], np.array([frame.time], float))
+        self._append(sg["dt"], np.array([frame.dt], float))
+        self._append(sg["open_close_iterations"], np.array([frame.open_close_iterations]))
+        self._append(sg["max_penetration"], np.array([frame.max_penetration], float))
+        self._append(sg["step"], np.array([frame.step]))
+        self.n_recorded = k + 1
+        if self.n_recorded % self.flush_every == 0:
+            f.flush()
+
+    def end(self, status: str, message: str = "", summary: dict[str, Any] | None = None) -> None:
+        """Close the SWMR session, then write status, message and summary (JSON) and close."""
+        if status not in STATUSES:
+            raise ValueError(f"status must be one of {STATUSES}, not {status!r}")
+        if self._file is None or self._ended:
+            raise RuntimeError("end() needs begin() first and may be called once")
+        text = json.dumps(summary if summary is not None else {}, default=_json_default)
+        self._file.flush()
+        self._file.close()
+        self._file = None
+        self._ended = True
+        with h5py.File(self.path, "r+", libver=LIBVER) as f:
+            f.attrs["status"] = status
+            f.attrs["message"] = message
+            f.attrs["summary"] = text
+            f.attrs["n_steps"] = np.int64(self.n_recorded)
+
+    # --- context manager: a writer left without end() says so in its status
+    def __enter__(self) -> ResultWriter:
+        return self
+
+    def __exit__(self, exc_type: type[BaseException] | None, exc: BaseException | None,
+                 tb: TracebackType | None) -> None:
+        if self._file is not None and not self._ended:
+            if exc is not None:
+                self.end("failed", f"{type(exc).__name__}: {exc}")
+            else:
+                self.end("stopped", "the recorder was closed before the run ended")
+
+
+# --------------------------------------------------------------------------- reader
+
+
+def _text(value: Any) -> str:
+    return value.decode("utf-8") if isinstance(value, bytes) else str(value)
+
+
+class Result:
+    """Read-only view of a result file (finished, still being written, or from a killed run).
+
+    Steps count only when every per-step dataset holds them; call :meth:`refresh` to see
+    steps a live writer added since opening.
+    """
+
+    def __init__(self, path: str | os.PathLike[str]) -> None:
+        self.path = Path(path)
+        self._file = self._open(self.path)
+        f = self._file
+        if _text(f.attrs.get("format", "")) != FORMAT:
+            self._file.close()
+            raise ValueError(f"{self.path} is not a {FORMAT} file")
+        b = f["blocks"]
+        self.format_version = int(f.attrs["format_version"])
+        self.engine_version = _text(f.attrs.get("engine_version", "unknown"))
+        sv = f.attrs.get("schema_version")
+        self.schema_version = None if sv is None else _text(sv)
+        self.block_names: list[str] = [_text(x) for x in b["names"][()]]
+        self.n_blocks = len(self.block_names)
+        self.material = b["material"][()]
+        self.fixed = b["fixed"][()]
+        self.volume = b["volume"][()]
+        self.initial_centroids = b["centroid"][()]
+        self._x0 = b["vertices"][()]
+        self._voff = b["vertex_offsets"][()]
+        self._vblock = np.repeat(np.arange(self.n_blocks), np.diff(self._voff))
+        self._foff = b["face_offsets"][()]
+        self._fconn = b["face_connectivity"][()]
+        self._fboff = b["face_block_offsets"][()]
+        self.face_tags = b["face_tags"][()]
+        self.n_steps = 0
+        self._cache: dict[str, np.ndarray] = {}
+        self.refresh()
+
+    @staticmethod
+    def _open(path: Path) -> h5py.File:
+        """Open read-only: SWMR read first (live or killed writer), then without file locks."""
+        errors = []
+        for kw in ({"swmr": True}, {"swmr": True, "locking": False}, {"locking": False}):
+            try:
+                return h5py.File(path, "r", **kw)
+            except OSError as exc:
+                if not path.exists():
+                    raise
+                errors.append(str(exc))
+        raise OSError(f"cannot open {path}: {'; '.join(errors)}")
+
+    # --- bookkeeping
+    def _per_step(self) -> Iterator[h5py.Dataset]:
+        f = self._file
+        yield from (f["steps"][k] for k in ("step", "time", "dt", "open_close_iterations",
+                                            "max_penetration"))
+        yield from f["steps/energies"].values()
+        yield from f["history"].values()
+        yield f["VTKHDF/Steps/Values"]
+
+    def refresh(self) -> int:
+        """Re-read the number of complete steps (grows while a writer is running)."""
+        f = self._file
+        if f.swmr_mode:
+            for ds in self._per_step():
+                ds.refresh()
+            for ds in f["contacts"].values():
+                ds.refresh()
+            f["VTKHDF/Points"].refresh()
+        k = min(ds.shape[0] for ds in self._per_step())
+        so = f["contacts/step_offsets"]
+        k = min(k, so.shape[0] - 1)
+        if self.contacts_recorded and k > 0:
+            rows = min(ds.shape[0] for name, ds in f["contacts"].items()
+                       if name != "step_offsets")
+            k = int(np.searchsorted(so[: k + 1], rows, side="right")) - 1
+        self.n_steps = max(k, 0)
+        self._cache = {}
+        return self.n_steps
+
+    def _read(self, path: str) -> np.ndarray:
+        """Dataset `path` cut to the complete steps (cached until refresh)."""
+        if path not in self._cache:
+            self._cache[path] = self._file[path][: self.n_steps]
+        return self._cache[path]
+
+    def close(self) -> None:
+        self._file.close()
+
+    def __enter__(self) -> Result:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    # --- run metadata
+    @property
+    def status(self) -> str:
+        """'running' (still going or killed), 'completed', 'failed', 'cancelled', 'stopped'."""
+        return _text(self._file.attrs["status"])
+
+    @property
+    def message(self) -> str:
+        return _text(self._file.attrs.get("message", ""))
+
+    @property
+    def summary(self) -> dict[str, Any] | None:
+        """The run summary given to `end()`, or None while the run has not ended."""
+        text = self._file.attrs.get("summary")
+        return None if text is None else json.loads(_text(text))
+
+    @property
+    def scene_json(self) -> str | None:
+        """The input scene JSON text (None if the run had none)."""
+        g = self._file["scene"]
+        return _text(g["json"][()]) if "json" in g else None
+
+    @property
+    def contacts_recorded(self) -> bool:
+        return bool(self._file["contacts"].attrs["recorded"])
+
+    @property
+    def times(self) -> np.ndarray:
+        """Time `(K,)` s of each recorded step."""
+        return self._read("steps/time")
+
+    @property
+    def steps(self) -> np.ndarray:
+        """Solver step number `(K,)` of each recorded step."""
+        return self._read("steps/step")
+
+    def step_data(self) -> dict[str, np.ndarray]:
+        """Per-step scalars `(K,)`: step, time, dt, open_close_iterations, max_penetration."""
+        return {k: self._read(f"steps/{k}") for k in
+                ("step", "time", "dt", "open_close_iterations", "max_penetration")}
+
+    def energies(self) -> dict[str, np.ndarray]:
+        """Energy and work terms `(K,)` J by name (NaN where the engine gave none)."""
+        return {k: self._read(f"steps/energies/{k}") for k in self._file["steps/energies"]}
+
+    # --- blocks
+    def block_index(self, name_or_index: str | int) -> int:
+        """Index of a block given by name (first match) or index (negative allowed)."""
+        if isinstance(name_or_index, str):
+            try:
+                return self.block_names.index(name_or_index)
+            except ValueError:
+                raise KeyError(f"no block named {name_or_index!r}") from None
+        i = int(name_or_index)
+        if not -self.n_blocks <= i < self.n_blocks:
+            raise IndexError(f"block index {i} out of range for {self.n_blocks} blocks")
+        return i % self.n_blocks
+
+    def block_history(self, name_or_index: str | int) -> dict[str, np.ndarray]:
+        """One block over time: time `(K,)`, centroid, displacement, rotation `(K,3)`,
+        velocity `(K,12)`, stress `(K,6)`, affine `(K,3,3)`."""
+        i = self.block_index(name_or_index)
+        h = self._file["history"]
+        out = {"step": self.steps, "time": self.times}
+        for name in _HISTORY_SHAPES:
+            out[name] = h[name][: self.n_steps, i]
+        out["displacement"] = out["centroid"] - self.initial_centroids[i]
+        return out
+
+    def _step(self, step_index: int) -> int:
+        k = int(step_index)
+        if not -self.n_steps <= k < self.n_steps:
+            raise IndexError(f"step index {k} out of range for {self.n_steps} steps")
+        return k % self.n_steps
+
+    def initial_vertices(self) -> list[np.ndarray]:
+        """Initial surface vertices `(k_b, 3)` of each block."""
+        return np.split(self._x0, self._voff[1:-1])
+
+    def faces(self, block: str | int) -> list[np.ndarray]:
+        """Faces of a block as arrays of indices into that block's vertex list."""
+        b = self.block_index(block)
+        f0, f1 = self._fboff[b], self._fboff[b + 1]
+        conn = self._fconn[self._foff[f0]: self._foff[f1]] - self._voff[b]
+        return np.split(conn, self._foff[f0 + 1: f1] - self._foff[f0])
+
+    def all_vertices(self, step_index: int) -> np.ndarray:
+        """Surface vertices of all blocks `(V, 3)` at a step, in `/blocks/vertices` order."""
+        k = self._step(step_index)
+        h = self._file["history"]
+        cent, aff = h["centroid"][k], h["affine"][k]
+        vb = self._vblock
+        return transform_points(self._x0, self.initial_centroids[vb], cent[vb], aff[vb])
+
+    def vertices(self, step_index: int) -> list[np.ndarray]:
+        """Surface vertices `(k_b, 3)` of each block at a step, `centroid + A (X0 - c0)`."""
+        return np.split(self.all_vertices(step_index), self._voff[1:-1])
+
+    def contacts(self, step_index: int) -> dict[str, np.ndarray]:
+        """Contacts of one step as arrays (`block_i (c,)`, `point_i (c,3)`, ... `shear_force`)."""
+        if not self.contacts_recorded:
+            raise ValueError("contacts were not recorded for this run (record_contacts=False)")
+        k = self._step(step_index)
+        g = self._file["contacts"]
+        a, b = g["step_offsets"][k: k + 2]
+        return {name: g[name][a:b] for name in _CONTACT_FIELDS}
+
+
+def open_result(path: str | os.PathLike[str]) -> Result:
+    """Open a result file read-only (also one still being written or left by a killed run)."""
+    return Result(path)

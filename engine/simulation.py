@@ -1,0 +1,648 @@
+"""DDA time stepping: the orchestrator of detect -> assemble -> open-close iterate -> update.
+
+One step (THEORY.md "One step"): detect contacts at the start of the step, assemble the
+block terms once, iterate contact modes (paper Tables 1 and 2) until they stop changing,
+check the displacement limit, then move blocks with the exact rotation. When a step
+cannot converge the time step is cut and the step redone; below the smallest allowed
+time step the run stops with a clear status and keeps what was recorded.
+"""
+
+from __future__ import annotations
+
+import time as _time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+from scipy.spatial import ConvexHull, QhullError
+from scipy.spatial.transform import Rotation
+
+from engine import assembly as asm
+from engine.contacts import LOCKED, OPEN, SLIDING, ContactSet, assign_joint_materials
+from engine.detection import detect_contacts
+from engine.frame import Frame, Recorder
+from engine.geometry import Polyhedron, rotation_matrix
+from engine.model import Model
+from engine.solver import SolveError, assemble, make_solver
+
+STATUS_COMPLETED = "completed"
+STATUS_FAILED = "failed"
+STATUS_CANCELLED = "cancelled"
+
+#: time-step cut factor when a step fails, and growth factor after easy steps
+DT_CUT = 0.3
+DT_GROW = 1.5
+#: relative change of friction forces below which the open-close iteration has converged
+FRICTION_RTOL = 1e-6
+#: cycles allowed per mode change for the explicit friction forces to settle (no refactor)
+FRICTION_ITERATIONS_PER_CHANGE = 6
+
+
+@dataclass
+class Progress:
+    """Progress of a run, for callbacks: step, simulated time (s), duration (s), Δt (s)."""
+
+    step: int
+    time: float
+    duration: float
+    dt: float
+
+    @property
+    def fraction(self) -> float:
+        return min(1.0, self.time / self.duration) if self.duration > 0 else 1.0
+
+
+@dataclass
+class ContactMemory:
+    """What a closed contact carries to the next step (inherited mode, paper 2.4 (2))."""
+
+    mode: int
+    shear: np.ndarray  # accumulated tangential displacement r_a (3,), m
+    tangent: np.ndarray  # sliding direction (3,)
+    broken: bool  # cohesion / tensile strength lost
+
+
+@dataclass
+class State:
+    """Everything that changes from step to step."""
+
+    centroid: np.ndarray  # (n, 3)
+    affine: np.ndarray  # (n, 3, 3) x = c + A (X0 - c0)
+    rotation: np.ndarray  # (n, 3, 3) accumulated rotation
+    velocity: np.ndarray  # (n, 12)
+    stress: np.ndarray  # (n, 6)
+    time: float = 0.0
+    step: int = 0
+    memory: dict[tuple[int, ...], ContactMemory] = field(default_factory=dict)
+    energies: dict[str, float] = field(default_factory=lambda: {
+        "gravity_work": 0.0, "external_work": 0.0, "friction_dissipation": 0.0})
+
+
+@dataclass
+class StepResult:
+    """The converged solution of one step."""
+
+    d: np.ndarray  # (n, 12) block displacement increments
+    contacts: ContactSet
+    gap1: np.ndarray  # (c,) normal distance at the end of the step
+    shear: np.ndarray  # (c, 3) shear spring stretch (locked) at the end
+    slip: np.ndarray  # (c, 3) relative tangential displacement in the step
+    normal_force: np.ndarray  # (c,) N, compression positive
+    shear_force: np.ndarray  # (c, 3) N on block i
+    friction_work: float
+    iterations: int
+
+
+@dataclass
+class RunResult:
+    """How a run ended and the final state."""
+
+    status: str
+    message: str
+    state: State
+    steps: int
+    wall_time: float
+    max_penetration: float
+    summary: dict[str, Any]
+
+
+class StepFailure(RuntimeError):
+    """A step did not converge at this time step (the caller cuts Δt)."""
+
+
+# --------------------------------------------------------------------------- helpers
+
+
+def _rows_dot(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    return np.einsum("ij,ij->i", a, b)
+
+
+def _strain_matrix(eps: np.ndarray) -> np.ndarray:
+    """Symmetric strain tensors `(n, 3, 3)` from Voigt engineering strains `(n, 6)`."""
+    e = np.zeros((len(eps), 3, 3))
+    e[:, 0, 0], e[:, 1, 1], e[:, 2, 2] = eps[:, 0], eps[:, 1], eps[:, 2]
+    e[:, 1, 2] = e[:, 2, 1] = 0.5 * eps[:, 3]
+    e[:, 0, 2] = e[:, 2, 0] = 0.5 * eps[:, 4]
+    e[:, 0, 1] = e[:, 1, 0] = 0.5 * eps[:, 5]
+    return e
+
+
+class Simulation:
+    """A DDA run of one model: holds constants and state, advances step by step."""
+
+    def __init__(self, model: Model) -> None:
+        self.model = model
+        c = model.controls
+        blocks = model.blocks
+        n = len(blocks)
+        self.n = n
+        self.polys0 = [b.polyhedron for b in blocks]
+        self.points0 = [p.vertices.copy() for p in self.polys0]
+        self.c0 = np.array([p.centroid for p in self.polys0]).reshape(n, 3)
+        self.volume0 = np.array([p.volume for p in self.polys0])
+        self.second0 = np.array([p.second_moments for p in self.polys0]).reshape(n, 3, 3)
+        self.density = np.array([model.materials[b.material].density for b in blocks])
+        self.fixed = np.array([b.fixed for b in blocks], dtype=bool)
+        self.elastic = c.block_model == "elastic"
+        ndof = 12 if self.elastic else 6
+        dof_map = np.full((n, 12), -1, dtype=np.int64)
+        k = 0
+        for b in range(n):
+            if not self.fixed[b]:
+                dof_map[b, :ndof] = np.arange(k, k + ndof)
+                k += ndof
+        self.dof_map = dof_map
+        self.n_unknowns = k
+        self.emat = np.array([
+            asm.elastic_matrix(model.materials[b.material].young_modulus,
+                               model.materials[b.material].poisson_ratio) for b in blocks
+        ]).reshape(n, 6, 6)
+        self.kn = float(c.penalty)
+        self.ks = float(c.penalty * c.shear_penalty_ratio)
+        self.kf = float(c.fixed_point_penalty or 10.0 * c.penalty)
+        self.scale = model.scale
+        thickness = np.array([2.0 * p.volume / max(p.face_areas.sum(), 1e-300)
+                              for p in self.polys0])
+        moving = ~self.fixed
+        thin = thickness[moving].min() if moving.any() else self.scale
+        #: largest displacement of any point in one step (paper eq. 50 in spirit)
+        self.max_step_displacement = min(c.max_displacement_ratio * self.scale, 0.5 * thin)
+        self.search_distance = 2.0 * self.max_step_displacement
+        self.radius = np.array([
+            np.linalg.norm(p.vertices[p.surface_vertex_ids] - p.centroid, axis=1).max()
+            for p in self.polys0
+        ])
+        self.tan_phi = np.array([np.tan(j.friction_angle_rad) for j in model.joint_materials])
+        self.cohesion = np.array([j.cohesion for j in model.joint_materials])
+        self.tension = np.array([j.tensile_strength for j in model.joint_materials])
+        self.loads_ref = [(ld.block, np.asarray(ld.point, float), np.asarray(ld.force, float))
+                          for ld in model.point_loads]
+        self.fixed_ref = [(fp.block, np.asarray(fp.point, float)) for fp in model.fixed_points]
+        v0 = np.zeros((n, 12))
+        for b, blk in enumerate(blocks):
+            if not self.fixed[b]:
+                v0[b, :6] = np.asarray(blk.velocity, float)[:6]
+        self.state = State(
+            centroid=self.c0.copy(),
+            affine=np.repeat(np.eye(3)[None], n, axis=0),
+            rotation=np.repeat(np.eye(3)[None], n, axis=0),
+            velocity=v0,
+            stress=np.zeros((n, 6)),
+        )
+        self.dt = float(c.time_step)
+        self.max_penetration = 0.0
+
+    # ------------------------------------------------------------------ geometry
+    def current_points(self, b: int, state: State | None = None) -> np.ndarray:
+        """All points `(k, 3)` of block `b` at the current state."""
+        s = state or self.state
+        return s.centroid[b] + (self.points0[b] - self.c0[b]) @ s.affine[b].T
+
+    def map_point(self, b: int, point0: np.ndarray) -> np.ndarray:
+        """Current position of a material point given at its initial position."""
+        s = self.state
+        return s.centroid[b] + s.affine[b] @ (point0 - self.c0[b])
+
+    def current_polyhedra(self) -> list[Polyhedron]:
+        return [p.moved(self.current_points(b)) for b, p in enumerate(self.polys0)]
+
+    def mass_properties(self) -> tuple[np.ndarray, np.ndarray]:
+        """Current volume `(n,)` and second moments `(n, 3, 3)` (affine images of the initial)."""
+        a = self.state.affine
+        det = np.linalg.det(a)
+        vol = self.volume0 * det
+        second = det[:, None, None] * np.einsum("nij,njk,nlk->nil", a, self.second0, a)
+        return vol, second
+
+    # ------------------------------------------------------------------ contacts
+    def detect(self) -> ContactSet:
+        """Contacts at the start of the step with joint materials and patch areas."""
+        polys = self.current_polyhedra()
+        contacts = detect_contacts(polys, self.search_distance, active=~self.fixed)
+        m = self.model
+        assign_joint_materials(contacts, m.default_joint_material, m.joint_material_of_tag,
+                               m.pair_joint_material)
+        return contacts
+
+    @staticmethod
+    def contact_areas(contacts: ContactSet) -> np.ndarray:
+        """Each constraint's share `(c,)` m² of its contact patch.
+
+        Constraints of one block pair with a common plane form a patch; its area is the
+        area of the convex hull of their points in that plane, shared equally. Fewer than
+        three points (edge or vertex contacts) carry no area.
+        """
+        out = np.zeros(len(contacts))
+        if not len(contacts):
+            return out
+        key = np.column_stack([contacts.block_i, contacts.block_j,
+                               np.round(contacts.normal * 1e6)]).astype(np.int64)
+        _, group = np.unique(key, axis=0, return_inverse=True)
+        group = group.ravel()
+        for g in np.unique(group):
+            idx = np.flatnonzero(group == g)
+            if len(idx) < 3:
+                continue
+            nrm = contacts.normal[idx[0]]
+            u = np.cross(nrm, [1.0, 0, 0] if abs(nrm[0]) < 0.9 else [0, 1.0, 0])
+            u /= np.linalg.norm(u)
+            v = np.cross(nrm, u)
+            p = contacts.point_j[idx]
+            pts = np.column_stack([p @ u, p @ v])
+            try:
+                area = ConvexHull(pts).volume
+            except QhullError:
+                area = 0.0
+            out[idx] = area / len(idx)
+        return out
+
+    # ------------------------------------------------------------------ one step
+    def block_terms(self, dt: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Block stiffness `(n, 12, 12)`, block forces `(n, 12)`, mass `(n, 12, 12)`."""
+        s = self.state
+        vol, second = self.mass_properties()
+        mass = asm.mass_matrices(self.density, vol, second)
+        kb = 2.0 * mass / dt**2
+        fb = 2.0 * np.einsum("nij,nj->ni", mass, s.velocity) / dt
+        fb[:, :3] += (self.density * vol)[:, None] * self.model.gravity[None]
+        if self.elastic:
+            kb[:, 6:, 6:] += vol[:, None, None] * self.emat
+            fb[:, 6:] -= vol[:, None] * s.stress
+        for b, p0, f in self.loads_ref:
+            t = asm.displacement_matrices(self.map_point(b, p0)[None], s.centroid[b][None])[0]
+            fb[b] += t.T @ f
+        for b, p0 in self.fixed_ref:
+            p = self.map_point(b, p0)
+            t = asm.displacement_matrices(p[None], s.centroid[b][None])[0]
+            kb[b] += self.kf * t.T @ t
+            fb[b] -= self.kf * t.T @ (p - p0)
+        return kb, fb, mass
+
+    def initial_modes(self, contacts: ContactSet, dt: float) -> tuple[np.ndarray, ...]:
+        """Modes, accumulated shear and tangents at the start of the step.
+
+        Inherited from the previous step for the same closed contact, else the paper's
+        Table 1 from the penetration and the relative tangential velocity.
+        """
+        s = self.state
+        c = len(contacts)
+        mode = np.full(c, OPEN, dtype=np.int8)
+        shear = np.zeros((c, 3))
+        tangent = np.zeros((c, 3))
+        broken = np.zeros(c, dtype=bool)
+        if c == 0:
+            return mode, shear, tangent, broken
+        ti = asm.displacement_matrices(contacts.point_i, s.centroid[contacts.block_i])
+        tj = asm.displacement_matrices(contacts.point_j, s.centroid[contacts.block_j])
+        vrel = (np.einsum("cij,cj->ci", ti, s.velocity[contacts.block_i])
+                - np.einsum("cij,cj->ci", tj, s.velocity[contacts.block_j]))
+        n = contacts.normal
+        vt = vrel - _rows_dot(vrel, n)[:, None] * n
+        vt_norm = np.linalg.norm(vt, axis=1)
+        tan_phi = self.tan_phi[contacts.joint_material]
+        for k in range(c):
+            mem = s.memory.get(tuple(contacts.key[k]))
+            if mem is not None:
+                mode[k] = mem.mode
+                nk = n[k]
+                shear[k] = mem.shear - (mem.shear @ nk) * nk
+                tangent[k] = mem.tangent - (mem.tangent @ nk) * nk
+                tn = np.linalg.norm(tangent[k])
+                tangent[k] = tangent[k] / tn if tn > 0 else 0.0
+                broken[k] = mem.broken
+                continue
+            if contacts.gap[k] < 0:
+                sliding = vt_norm[k] * dt * self.ks > abs(contacts.gap[k]) * self.kn * tan_phi[k]
+                mode[k] = SLIDING if sliding else LOCKED
+                if vt_norm[k] > 0:
+                    tangent[k] = vt[k] / vt_norm[k]
+        return mode, shear, tangent, broken
+
+    def solve_step(self, contacts: ContactSet, dt: float, areas: np.ndarray) -> StepResult:
+        """Open-close iteration for one step at time step `dt` (raises StepFailure)."""
+        s = self.state
+        kb, fb, _ = self.block_terms(dt)
+        nu = self.n_unknowns
+        rows_b, cols_b, vals_b = asm.block_triplets(self.dof_map, kb)
+        f_block = asm.scatter_vector(self.dof_map, np.arange(self.n), fb, nu)
+        c = len(contacts)
+        mode, shear0, tangent, broken = self.initial_modes(contacts, dt)
+        bi, bj = contacts.block_i, contacts.block_j
+        n = contacts.normal
+        d0 = contacts.gap
+        ti = asm.displacement_matrices(contacts.point_i, s.centroid[bi])
+        tj = asm.displacement_matrices(contacts.point_j, s.centroid[bj])
+        nmat = np.eye(3)[None] - np.einsum("ci,cj->cij", n, n)
+        tan_phi = self.tan_phi[contacts.joint_material]
+        cohesion_force = self.cohesion[contacts.joint_material] * areas
+        tension_force = self.tension[contacts.joint_material] * areas
+        # friction normal distance d_n* (paper eq. 30): start of step, then last cycle
+        dstar = np.minimum(d0, 0.0)
+        offset = np.zeros((c, 3))  # revised contact point shift for contacts closing (eq. 47)
+        solver = None
+        solver_key: tuple[bytes, bytes] | None = None
+        x = None
+        fric_prev = np.zeros((c, 3))
+        max_changes = self.model.controls.max_open_close_iterations
+        mode_changes = 0
+        for it in range(1, FRICTION_ITERATIONS_PER_CHANGE * (max_changes + 1) + 1):
+            closed = mode != OPEN
+            locked = mode == LOCKED
+            sliding = mode == SLIDING
+            key = (closed.tobytes(), locked.tobytes())
+            ra = shear0 + offset
+            if solver is None or key != solver_key:
+                kn_c = self.kn * closed.astype(float)
+                ks_c = self.ks * locked.astype(float)
+                kii, kij, kjj = asm.contact_stiffness(ti, tj, n, kn_c, ks_c)
+                r, cc, v = asm.pair_triplets(self.dof_map, bi, bj, kii, kij, kjj)
+                k = assemble(nu, np.concatenate([rows_b, r]), np.concatenate([cols_b, cc]),
+                             np.concatenate([vals_b, v]))
+                try:
+                    solver = make_solver(k)
+                except SolveError as exc:
+                    raise StepFailure(str(exc)) from exc
+                solver_key = key
+            fric_mag = np.where(sliding, tan_phi * self.kn * np.abs(dstar), 0.0)
+            fric = fric_mag[:, None] * tangent
+            # contact forces on block i (on j the opposite), as generalized loads
+            fi_point = (-(self.kn * d0 * closed)[:, None] * n
+                        - self.ks * locked[:, None] * np.einsum("cij,cj->ci", nmat, ra)
+                        - fric)
+            fvec_i = np.einsum("cki,ck->ci", ti, fi_point)
+            fvec_j = -np.einsum("cki,ck->ci", tj, fi_point)
+            f = (f_block + asm.scatter_vector(self.dof_map, bi, fvec_i, nu)
+                 + asm.scatter_vector(self.dof_map, bj, fvec_j, nu))
+            try:
+                x = solver(f, x)
+            except SolveError as exc:
+                raise StepFailure(str(exc)) from exc
+            d = np.zeros((self.n, 12))
+            m = self.dof_map >= 0
+            d[m] = x[self.dof_map[m]]
+            dr = np.einsum("cij,cj->ci", ti, d[bi]) - np.einsum("cij,cj->ci", tj, d[bj])
+            d1 = d0 + _rows_dot(dr, n)
+            dr_t = dr - _rows_dot(dr, n)[:, None] * n
+            total_shear = np.einsum("cij,cj->ci", nmat, ra + dr)
+            # ---- update modes (paper Table 2)
+            new_mode = mode.copy()
+            new_tangent = tangent.copy()
+            normal_force = -self.kn * d1
+            allow_tension = np.where(broken, 0.0, tension_force)
+            opening = closed & (normal_force < -allow_tension)
+            new_mode[opening] = OPEN
+            still = closed & ~opening
+            limit = tan_phi * np.maximum(normal_force, 0.0) + np.where(broken, 0.0,
+                                                                       cohesion_force)
+            fs = self.ks * np.linalg.norm(total_shear, axis=1)
+            to_slide = still & locked & (fs > limit * (1 + 1e-9))
+            ts_norm = np.linalg.norm(total_shear, axis=1)
+            new_mode[to_slide] = SLIDING
+            new_tangent[to_slide] = total_shear[to_slide] / np.maximum(ts_norm[to_slide],
+                                                                       1e-300)[:, None]
+            broken = broken | to_slide
+            along = _rows_dot(dr_t, tangent)
+            # paper Table 2: a sliding contact locks when its slip reverses or when a
+            # locked spring could carry that slip within the friction limit
+            relock = still & sliding & ((along < 0) | (self.ks * along <= tan_phi * normal_force))
+            new_mode[relock] = LOCKED
+            # the re-locked spring continues from the friction force (no jump)
+            offset[relock] = (fric_mag[relock, None] / self.ks * tangent[relock]
+                              - dr_t[relock] - shear0[relock])
+            # open contacts that penetrate close (first entrance, revised point eq. 42-47)
+            closing = ~closed & (d1 < 0)
+            if np.any(closing):
+                tstar = np.where(d0[closing] > 0,
+                                 d0[closing] / (d0[closing] - d1[closing]), 0.0)
+                offset[closing] = -tstar[:, None] * dr_t[closing]
+                after = (1 - tstar)[:, None] * dr_t[closing]
+                slide = (self.ks * np.linalg.norm(after, axis=1)
+                         > tan_phi[closing] * self.kn * np.abs(d1[closing]))
+                cm = np.where(slide, SLIDING, LOCKED).astype(np.int8)
+                new_mode[closing] = cm
+                an = np.linalg.norm(after, axis=1)
+                tn = np.where(an[:, None] > 0, after / np.maximum(an, 1e-300)[:, None], 0.0)
+                new_tangent[closing] = tn
+            new_dstar = np.where(new_mode != OPEN, np.minimum(d1, 0.0), 0.0)
+            # a contact that just closed had no normal spring in this cycle: its d1 is a
+            # free-flight overlap, so it carries no friction until the next solve
+            new_dstar[closing] = 0.0
+            new_fric = np.where(new_mode == SLIDING, tan_phi * self.kn * np.abs(new_dstar),
+                                0.0)[:, None] * new_tangent
+            changed = np.any(new_mode != mode)
+            mode_changes += int(changed)
+            if mode_changes > max_changes:
+                break
+            fric_scale = max(np.abs(new_fric).max(initial=0.0), 1e-300)
+            fric_change = np.abs(new_fric - fric_prev).max(initial=0.0) / fric_scale
+            fric_prev = fric
+            mode, tangent, dstar = new_mode, new_tangent, new_dstar
+            if not changed and (fric_change <= FRICTION_RTOL or not np.any(sliding)):
+                closed = mode != OPEN
+                locked = mode == LOCKED
+                ra = shear0 + offset
+                total_shear = np.einsum("cij,cj->ci", nmat, ra + dr)
+                nf = np.where(closed, -self.kn * d1, 0.0)
+                sf = np.where(locked[:, None], -self.ks * total_shear, 0.0) - fric
+                fw = float(np.sum(fric_mag * np.maximum(_rows_dot(dr_t, tangent), 0.0)))
+                return StepResult(
+                    d=d, contacts=_with_modes(contacts, mode, tangent, d1),
+                    gap1=d1, shear=np.where(locked[:, None], total_shear, 0.0), slip=dr_t,
+                    normal_force=nf, shear_force=sf, friction_work=fw, iterations=it,
+                )
+        raise StepFailure(
+            f"open-close iteration did not converge ({mode_changes} mode changes, "
+            f"{it} cycles)"
+        )
+
+    def max_point_displacement(self, d: np.ndarray) -> float:
+        """Bound on the largest displacement of any block point in the step (m)."""
+        trans = np.linalg.norm(d[:, :3], axis=1)
+        rot = np.linalg.norm(d[:, 3:6], axis=1) * self.radius
+        strain = np.abs(d[:, 6:]).max(axis=1) * 2.0 * self.radius
+        return float((trans + rot + strain).max(initial=0.0))
+
+    def advance(self, res: StepResult, dt: float) -> None:
+        """Move the blocks (exact rotation), update velocities, stresses and contact memory."""
+        s = self.state
+        d = res.d
+        vol, _ = self.mass_properties()
+        weight = (self.density * vol)[:, None] * self.model.gravity[None]
+        s.energies["gravity_work"] += float(np.sum(weight * d[:, :3]))
+        for b, p0, f in self.loads_ref:
+            t = asm.displacement_matrices(self.map_point(b, p0)[None], s.centroid[b][None])[0]
+            s.energies["external_work"] += float(f @ (t @ d[b]))
+        s.energies["friction_dissipation"] += res.friction_work
+        rot = rotation_matrix(d[:, 3:6]).reshape(self.n, 3, 3)
+        stretch = np.eye(3)[None] + _strain_matrix(d[:, 6:])
+        s.affine = np.einsum("nij,njk,nkl->nil", rot, stretch, s.affine)
+        s.rotation = np.einsum("nij,njk->nik", rot, s.rotation)
+        s.centroid = s.centroid + d[:, :3]
+        v1 = 2.0 * d / dt - s.velocity
+        v1[self.fixed] = 0.0
+        s.velocity = self.model.controls.dynamic_ratio * v1
+        if self.elastic:
+            s.stress = s.stress + np.einsum("nij,nj->ni", self.emat, d[:, 6:])
+        # contact memory for the next step: closed contacts only
+        memory: dict[tuple[int, ...], ContactMemory] = {}
+        cs = res.contacts
+        slip_norm = np.linalg.norm(res.slip, axis=1)
+        for k in np.flatnonzero(cs.mode != OPEN):
+            # sliding direction for the next step: this step's slip (paper eq. 7)
+            t = res.slip[k] / slip_norm[k] if slip_norm[k] > 1e-14 * self.scale else cs.tangent[k]
+            memory[tuple(cs.key[k])] = ContactMemory(
+                mode=int(cs.mode[k]), shear=res.shear[k].copy(), tangent=t.copy(),
+                broken=bool(cs.mode[k] == SLIDING))
+        s.memory = memory
+        s.time += dt
+        s.step += 1
+        closed = cs.mode != OPEN
+        pen = float(np.max(-res.gap1[closed], initial=0.0))
+        self.max_penetration = max(self.max_penetration, pen)
+
+    def step(self) -> StepResult:
+        """Advance one step, cutting Δt as needed (raises StepFailure below the minimum)."""
+        c = self.model.controls
+        contacts = self.detect()
+        areas = self.contact_areas(contacts)
+        remaining = c.duration - self.state.time
+        dt = min(self.dt, remaining) if remaining > 0 else self.dt
+        reason = ""
+        while dt >= c.min_time_step:
+            try:
+                res = self.solve_step(contacts, dt, areas)
+                disp = self.max_point_displacement(res.d)
+                if disp > self.max_step_displacement:
+                    raise StepFailure(
+                        f"largest displacement {disp:.3g} m exceeds the step limit "
+                        f"{self.max_step_displacement:.3g} m")
+                pen = float(np.max(-res.gap1[res.contacts.mode != OPEN], initial=0.0))
+                if pen > self.max_step_displacement:
+                    raise StepFailure(f"penetration {pen:.3g} m exceeds the step limit")
+            except StepFailure as exc:
+                reason = str(exc)
+                dt *= DT_CUT
+                continue
+            self.advance(res, dt)
+            if dt < self.dt and dt < remaining:
+                self.dt = dt  # remember the cut; grow back after easy steps
+            elif res.iterations <= 3:
+                self.dt = min(c.time_step, self.dt * DT_GROW)
+            self.last = res
+            self.last_dt = dt
+            return res
+        raise StepFailure(
+            f"step {self.state.step + 1} at t = {self.state.time:.6g} s did not converge even "
+            f"at the smallest time step {c.min_time_step:g} s: {reason}")
+
+    # ------------------------------------------------------------------ output
+    def energies(self, res: StepResult | None) -> dict[str, float]:
+        s = self.state
+        vol, second = self.mass_properties()
+        mass = asm.mass_matrices(self.density, vol, second)
+        kinetic = 0.5 * float(np.einsum("ni,nij,nj->", s.velocity, mass, s.velocity))
+        contact = 0.0
+        if res is not None and len(res.contacts):
+            closed = res.contacts.mode != OPEN
+            contact = 0.5 * self.kn * float(np.sum(res.gap1[closed] ** 2))
+            contact += 0.5 * self.ks * float(np.sum(res.shear**2))
+        elastic = 0.0
+        if self.elastic:
+            comp = np.linalg.solve(self.emat, s.stress[:, :, None])[:, :, 0]
+            elastic = 0.5 * float(np.sum(vol * _rows_dot(s.stress, comp)))
+        return {"kinetic": kinetic, "elastic": elastic, "contact": contact, **s.energies}
+
+    def frame(self, res: StepResult | None, dt: float) -> Frame:
+        s = self.state
+        rv = Rotation.from_matrix(s.rotation).as_rotvec().reshape(self.n, 3)
+        f = Frame(
+            step=s.step, time=s.time, dt=dt,
+            open_close_iterations=res.iterations if res else 0,
+            max_penetration=float(np.max(-res.gap1[res.contacts.mode != OPEN], initial=0.0))
+            if res is not None and len(res.contacts) else 0.0,
+            centroids=s.centroid.copy(), affine=s.affine.copy(), rotation=rv,
+            velocity=s.velocity.copy(), stress=s.stress.copy(), energies=self.energies(res),
+        )
+        if res is not None and self.model.controls.record_contacts:
+            f.contacts = res.contacts
+            f.normal_force = res.normal_force
+            f.shear_force = res.shear_force
+        return f
+
+    def summary(self, status: str, message: str, wall: float) -> dict[str, Any]:
+        s = self.state
+        rv = Rotation.from_matrix(s.rotation).as_rotvec().reshape(self.n, 3)
+        blocks = []
+        for b, blk in enumerate(self.model.blocks):
+            blocks.append({
+                "name": blk.name or f"block{b}",
+                "centroid": s.centroid[b].tolist(),
+                "rotation": rv[b].tolist(),
+                "displacement": (s.centroid[b] - self.c0[b]).tolist(),
+                "velocity": s.velocity[b, :6].tolist(),
+            })
+        return {
+            "status": status, "message": message, "steps": s.step,
+            "simulated_time": s.time, "wall_time": wall,
+            "max_penetration": self.max_penetration, "blocks": blocks,
+        }
+
+
+def _with_modes(contacts: ContactSet, mode: np.ndarray, tangent: np.ndarray,
+                gap1: np.ndarray) -> ContactSet:
+    """A copy of `contacts` with the converged modes and tangents."""
+    out = contacts.subset(np.arange(len(contacts)))
+    out.mode = mode.astype(np.int8)
+    out.tangent = tangent
+    return out
+
+
+def run(
+    model: Model,
+    recorder: Recorder | None = None,
+    progress: Callable[[Progress], None] | None = None,
+    should_stop: Callable[[], bool] | None = None,
+    scene_json: str | None = None,
+) -> RunResult:
+    """Run `model` to its duration; record frames; never return NaN or silently wrong results.
+
+    Status is `completed`, `cancelled` (should_stop returned True) or `failed` (a step
+    could not converge at the smallest time step, or the state became non-finite).
+    """
+    start = _time.perf_counter()
+    sim = Simulation(model)
+    c = model.controls
+    if recorder is not None:
+        recorder.begin(model, scene_json)
+        recorder.record(sim.frame(None, sim.dt))
+    status, message = STATUS_COMPLETED, ""
+    res = None
+    eps = 1e-12 * max(c.duration, 1.0)
+    try:
+        while sim.state.time < c.duration - eps:
+            if should_stop is not None and should_stop():
+                status, message = STATUS_CANCELLED, "cancelled by request"
+                break
+            try:
+                res = sim.step()
+            except StepFailure as exc:
+                status, message = STATUS_FAILED, str(exc)
+                break
+            s = sim.state
+            if not (np.all(np.isfinite(s.centroid)) and np.all(np.isfinite(s.velocity))):
+                status = STATUS_FAILED
+                message = f"non-finite state at step {s.step}; stopped"
+                break
+            last = sim.state.time >= c.duration - eps
+            if recorder is not None and (s.step % c.record_interval == 0 or last):
+                recorder.record(sim.frame(res, sim.last_dt))
+            if progress is not None:
+                progress(Progress(s.step, s.time, c.duration, sim.last_dt))
+    finally:
+        wall = _time.perf_counter() - start
+        summary = sim.summary(status, message, wall)
+        if recorder is not None:
+            recorder.end(status, message, summary)
+    return RunResult(status, message, sim.state, sim.state.step, wall, sim.max_penetration,
+                     summary)

@@ -1,0 +1,77 @@
+"""The linear solve of `K D = F` behind one function: a sparse direct factorization for
+small systems, preconditioned conjugate gradients (block Jacobi, warm start) for large ones.
+
+K is symmetric positive definite (inertia + penalty springs; friction is explicit).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+
+import numpy as np
+import scipy.sparse as sp
+import scipy.sparse.linalg as spla
+
+#: systems with more unknowns than this use conjugate gradients (THEORY.md measurements)
+DIRECT_SOLVE_MAX_UNKNOWNS = 3000
+CG_RTOL = 1e-12
+
+
+class SolveError(RuntimeError):
+    """The linear system could not be solved (singular or not converged)."""
+
+
+def assemble(n: int, rows: np.ndarray, cols: np.ndarray, vals: np.ndarray) -> sp.csc_matrix:
+    """COO triplets -> one sparse matrix `(n, n)` (duplicates summed), converted once."""
+    return sp.coo_matrix((vals, (rows, cols)), shape=(n, n)).tocsc()
+
+
+def _block_jacobi(k: sp.csc_matrix, block: int) -> spla.LinearOperator:
+    """Inverse of the `block`×`block` diagonal blocks of K as a preconditioner."""
+    n = k.shape[0]
+    nb = n // block
+    kc = k.tocsr()
+    diag = np.zeros((nb, block, block))
+    for a in range(block):
+        for b in range(block):
+            diag[:, a, b] = kc[np.arange(a, n, block), np.arange(b, n, block)].A1
+    inv = np.linalg.inv(diag)
+
+    def apply(x: np.ndarray) -> np.ndarray:
+        return np.einsum("kij,kj->ki", inv, x.reshape(nb, block)).ravel()
+
+    return spla.LinearOperator((n, n), matvec=apply, dtype=float)
+
+
+def make_solver(k: sp.csc_matrix, block: int = 6) -> Callable[[np.ndarray, np.ndarray | None],
+                                                                   np.ndarray]:
+    """A function `solve(F, x0) -> D` for this K, factorized or CG by size.
+
+    The factorization (or preconditioner) is built once and reused for every
+    right-hand side of the open-close iteration that keeps the same K.
+    """
+    n = k.shape[0]
+    if n == 0:
+        return lambda f, x0=None: np.zeros(0)
+    if n <= DIRECT_SOLVE_MAX_UNKNOWNS or n % block:
+        try:
+            lu = spla.splu(k)
+        except RuntimeError as exc:  # exactly singular
+            raise SolveError(f"singular system: {exc}") from exc
+
+        def direct(f: np.ndarray, x0: np.ndarray | None = None) -> np.ndarray:
+            x = lu.solve(f)
+            if not np.all(np.isfinite(x)):
+                raise SolveError("direct solve produced non-finite values")
+            return x
+
+        return direct
+    pre = _block_jacobi(k, block)
+
+    def cg(f: np.ndarray, x0: np.ndarray | None = None) -> np.ndarray:
+        x, info = spla.cg(k, f, x0=x0, rtol=CG_RTOL, atol=0.0, M=pre, maxiter=10 * n)
+        if info != 0 or not np.all(np.isfinite(x)):
+            raise SolveError(f"conjugate gradients did not converge (info={info})")
+        return x
+
+    return cg
