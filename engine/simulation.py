@@ -164,8 +164,8 @@ class Simulation:
         self.scale = model.scale
         thickness = np.array([2.0 * p.volume / max(p.face_areas.sum(), 1e-300)
                               for p in self.polys0])
-        moving = ~self.fixed
-        thin = thickness[moving].min() if moving.any() else self.scale
+        # thin blocks, fixed or not, bound the step so nothing tunnels through them
+        thin = thickness.min() if n else self.scale
         #: largest displacement of any point in one step (paper eq. 50 in spirit)
         self.max_step_displacement = min(c.max_displacement_ratio * self.scale, 0.5 * thin)
         self.search_distance = 2.0 * self.max_step_displacement

@@ -1,0 +1,182 @@
+"""Drivers around the simulation: factor of safety by strength reduction (paper 6.1).
+
+The joints' strength is divided by a trial factor F (tan φ / F, c / F, T / F) and the
+model is run for an observation time; F fails when the moving blocks keep accelerating
+over the observation window. Bisection on F gives the factor of safety, eq. 52:
+`F_s = tan φ / tan φ_r`. The criterion is sustained acceleration, not a displacement
+threshold, which would bias the answer with the observation time (VALIDATION.md 2.3).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Callable
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from engine.frame import Frame
+from engine.model import JointMaterial, Model
+from engine.simulation import STATUS_CANCELLED, STATUS_FAILED, run
+
+
+@dataclass(frozen=True)
+class StrengthReductionControls:
+    """Settings of the factor-of-safety search.
+
+    The window is `[window_start, observation_time]` (s); a trial fails when the mean
+    acceleration of the fastest block point over the window exceeds
+    `acceleration_threshold` (m/s²). Bisection stops when the bracket is narrower
+    than `tolerance` relative to F.
+    """
+
+    observation_time: float = 3.0
+    window_start: float = 1.0
+    acceleration_threshold: float = 0.01
+    tolerance: float = 0.005
+    factor_min: float = 0.05
+    factor_max: float = 20.0
+    max_runs: int = 30
+
+
+@dataclass
+class TrialRun:
+    """One strength-reduction trial: factor, verdict, measured mean acceleration (m/s²)."""
+
+    factor: float
+    failed: bool
+    mean_acceleration: float
+    status: str
+
+
+@dataclass
+class FactorOfSafetyResult:
+    """Factor of safety, critical friction angle of each joint material (deg), trials."""
+
+    factor_of_safety: float
+    critical_friction_angles_deg: list[float]
+    runs: list[TrialRun] = field(default_factory=list)
+    status: str = "completed"
+    message: str = ""
+
+    def as_dict(self) -> dict:
+        return {
+            "factor_of_safety": self.factor_of_safety,
+            "critical_friction_angle": self.critical_friction_angles_deg[0]
+            if len(self.critical_friction_angles_deg) == 1 else self.critical_friction_angles_deg,
+            "runs": [dataclasses.asdict(r) for r in self.runs],
+            "status": self.status,
+            "message": self.message,
+        }
+
+
+def reduced_model(model: Model, factor: float, duration: float) -> Model:
+    """A copy of `model` with joint strengths divided by `factor` and the given duration."""
+    joints = [
+        JointMaterial(
+            friction_angle_rad=float(np.arctan(np.tan(j.friction_angle_rad) / factor)),
+            cohesion=j.cohesion / factor,
+            tensile_strength=j.tensile_strength / factor,
+        )
+        for j in model.joint_materials
+    ]
+    controls = dataclasses.replace(model.controls, duration=duration, record_contacts=False,
+                                   record_interval=1)
+    return dataclasses.replace(model, joint_materials=joints, controls=controls)
+
+
+class _SpeedProbe:
+    """A recorder that keeps the fastest point speed (m/s) of the moving blocks per step."""
+
+    def __init__(self, radius: np.ndarray, moving: np.ndarray) -> None:
+        self.radius, self.moving = radius, moving
+        self.time: list[float] = []
+        self.speed: list[float] = []
+
+    def begin(self, model: Model, scene_json: str | None = None) -> None:
+        pass
+
+    def record(self, frame: Frame) -> None:
+        v = frame.velocity[self.moving]
+        s = np.linalg.norm(v[:, :3], axis=1) + np.linalg.norm(v[:, 3:6], axis=1) * self.radius
+        self.time.append(frame.time)
+        self.speed.append(float(s.max(initial=0.0)))
+
+    def end(self, status: str, message: str = "", summary: dict | None = None) -> None:
+        pass
+
+    def mean_acceleration(self, t0: float, t1: float) -> float:
+        t, s = np.array(self.time), np.array(self.speed)
+        if len(t) < 2:
+            return 0.0
+        v0 = np.interp(t0, t, s)
+        v1 = np.interp(min(t1, t[-1]), t, s)
+        return float((v1 - v0) / max(min(t1, t[-1]) - t0, 1e-12))
+
+
+def trial(model: Model, factor: float, controls: StrengthReductionControls) -> TrialRun:
+    """Run the model with strengths reduced by `factor`; failed = sustained acceleration."""
+    m = reduced_model(model, factor, controls.observation_time)
+    radius = np.array([
+        np.linalg.norm(b.polyhedron.vertices[b.polyhedron.surface_vertex_ids]
+                       - b.polyhedron.centroid, axis=1).max() for b in m.blocks
+    ])
+    moving = np.array([not b.fixed for b in m.blocks])
+    probe = _SpeedProbe(radius[moving], moving)
+    res = run(m, recorder=probe)
+    if res.status == STATUS_CANCELLED:
+        return TrialRun(factor, False, 0.0, res.status)
+    acc = probe.mean_acceleration(controls.window_start, controls.observation_time)
+    failed = res.status == STATUS_FAILED or acc > controls.acceleration_threshold
+    return TrialRun(factor, bool(failed), acc, res.status)
+
+
+def factor_of_safety(
+    model: Model,
+    controls: StrengthReductionControls | None = None,
+    progress: Callable[[TrialRun], None] | None = None,
+) -> FactorOfSafetyResult:
+    """Factor of safety by bisection on the strength-reduction factor F."""
+    c = controls or StrengthReductionControls()
+    runs: list[TrialRun] = []
+
+    def check(f: float) -> bool:
+        r = trial(model, f, c)
+        runs.append(r)
+        if progress is not None:
+            progress(r)
+        return r.failed
+
+    lo, hi = 1.0, 1.0
+    if check(1.0):
+        hi = 1.0
+        lo = 0.5
+        while check(lo):
+            hi = lo
+            lo *= 0.5
+            if lo < c.factor_min:
+                return _result(model, lo, runs, "failed",
+                               f"the model fails even with strengths multiplied by {1 / lo:g}")
+    else:
+        hi = 2.0
+        while not check(hi):
+            lo = hi
+            hi *= 2.0
+            if hi > c.factor_max:
+                return _result(model, hi, runs, "completed",
+                               f"no failure up to a reduction factor of {c.factor_max:g}; "
+                               f"the factor of safety is at least that")
+    while (hi - lo) / lo > c.tolerance and len(runs) < c.max_runs:
+        mid = 0.5 * (lo + hi)
+        if check(mid):
+            hi = mid
+        else:
+            lo = mid
+    return _result(model, 0.5 * (lo + hi), runs, "completed", "")
+
+
+def _result(model: Model, factor: float, runs: list[TrialRun], status: str,
+            message: str) -> FactorOfSafetyResult:
+    crit = [float(np.degrees(np.arctan(np.tan(j.friction_angle_rad) / factor)))
+            for j in model.joint_materials]
+    return FactorOfSafetyResult(float(factor), crit, runs, status, message)
