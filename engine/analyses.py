@@ -37,6 +37,10 @@ class StrengthReductionControls:
     factor_min: float = 0.05
     factor_max: float = 20.0
     max_runs: int = 30
+    #: joint materials whose strength is reduced (None: all)
+    joint_materials: tuple[int, ...] | None = None
+    #: blocks whose acceleration decides failure (None: every block that is not fixed)
+    watch_blocks: tuple[int, ...] | None = None
 
 
 @dataclass
@@ -70,15 +74,18 @@ class FactorOfSafetyResult:
         }
 
 
-def reduced_model(model: Model, factor: float, duration: float) -> Model:
-    """A copy of `model` with joint strengths divided by `factor` and the given duration."""
+def reduced_model(model: Model, factor: float, duration: float,
+                  which: tuple[int, ...] | None = None) -> Model:
+    """A copy of `model` with the strengths of joint materials `which` (None: all) divided
+    by `factor`, and the given duration."""
     joints = [
         JointMaterial(
             friction_angle_rad=float(np.arctan(np.tan(j.friction_angle_rad) / factor)),
             cohesion=j.cohesion / factor,
             tensile_strength=j.tensile_strength / factor,
         )
-        for j in model.joint_materials
+        if which is None or k in which else j
+        for k, j in enumerate(model.joint_materials)
     ]
     controls = dataclasses.replace(model.controls, duration=duration, record_contacts=False,
                                    record_interval=1)
@@ -116,12 +123,16 @@ class _SpeedProbe:
 
 def trial(model: Model, factor: float, controls: StrengthReductionControls) -> TrialRun:
     """Run the model with strengths reduced by `factor`; failed = sustained acceleration."""
-    m = reduced_model(model, factor, controls.observation_time)
+    m = reduced_model(model, factor, controls.observation_time, controls.joint_materials)
     radius = np.array([
         np.linalg.norm(b.polyhedron.vertices[b.polyhedron.surface_vertex_ids]
                        - b.polyhedron.centroid, axis=1).max() for b in m.blocks
     ])
     moving = np.array([not b.fixed for b in m.blocks])
+    if controls.watch_blocks:
+        watch = np.zeros(len(m.blocks), dtype=bool)
+        watch[list(controls.watch_blocks)] = True
+        moving &= watch
     probe = _SpeedProbe(radius[moving], moving)
     res = run(m, recorder=probe)
     if res.status == STATUS_CANCELLED:
@@ -156,7 +167,8 @@ def factor_of_safety(
             lo *= 0.5
             if lo < c.factor_min:
                 return _result(model, lo, runs, "failed",
-                               f"the model fails even with strengths multiplied by {1 / lo:g}")
+                               f"the model fails even with strengths multiplied by {1 / lo:g}",
+                               c.joint_materials)
     else:
         hi = 2.0
         while not check(hi):
@@ -165,18 +177,18 @@ def factor_of_safety(
             if hi > c.factor_max:
                 return _result(model, hi, runs, "completed",
                                f"no failure up to a reduction factor of {c.factor_max:g}; "
-                               f"the factor of safety is at least that")
+                               f"the factor of safety is at least that", c.joint_materials)
     while (hi - lo) / lo > c.tolerance and len(runs) < c.max_runs:
         mid = 0.5 * (lo + hi)
         if check(mid):
             hi = mid
         else:
             lo = mid
-    return _result(model, 0.5 * (lo + hi), runs, "completed", "")
+    return _result(model, 0.5 * (lo + hi), runs, "completed", "", c.joint_materials)
 
 
 def _result(model: Model, factor: float, runs: list[TrialRun], status: str,
-            message: str) -> FactorOfSafetyResult:
+            message: str, which: tuple[int, ...] | None = None) -> FactorOfSafetyResult:
     crit = [float(np.degrees(np.arctan(np.tan(j.friction_angle_rad) / factor)))
-            for j in model.joint_materials]
+            for k, j in enumerate(model.joint_materials) if which is None or k in which]
     return FactorOfSafetyResult(float(factor), crit, runs, status, message)

@@ -104,7 +104,8 @@ def pair_triplets(
     return np.concatenate(rows), np.concatenate(cols), np.concatenate(vals)
 
 
-def scatter_vector(dof_map: np.ndarray, block: np.ndarray, values: np.ndarray, n: int) -> np.ndarray:
+def scatter_vector(dof_map: np.ndarray, block: np.ndarray, values: np.ndarray,
+                   n: int) -> np.ndarray:
     """Global vector `(n,)` from per-block 12-vectors `values (p, 12)` of blocks `block (p,)`."""
     out = np.zeros(n)
     idx = dof_map[block]

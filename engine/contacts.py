@@ -96,3 +96,17 @@ class ContactSet:
             else:
                 out[f.name] = np.concatenate([getattr(p, f.name) for p in parts])
         return ContactSet(**out)
+
+
+def assign_joint_materials(contacts: ContactSet, default: int, of_tag: dict[int, int],
+                           of_pair: dict[tuple[int, int], int]) -> None:
+    """Fill `contacts.joint_material (c,)` in place: block pair (min, max) wins over the
+    face tag of the contact plane, which wins over `default`."""
+    mat = np.full(len(contacts), default, dtype=np.int64)
+    for tag, m in of_tag.items():
+        mat[contacts.face_tag == tag] = m
+    lo = np.minimum(contacts.block_i, contacts.block_j)
+    hi = np.maximum(contacts.block_i, contacts.block_j)
+    for (a, b), m in of_pair.items():
+        mat[(lo == min(a, b)) & (hi == max(a, b))] = m
+    contacts.joint_material = mat

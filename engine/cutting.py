@@ -162,20 +162,25 @@ class _Planes:
         self.offset: list[float] = []
         self.group: list[int] = []
         self.members: list[list[int]] = []  # joint indices lying on the plane
+        self._normals = np.zeros((0, 3))  # group normals, with spare rows
 
     def add(self, normal: np.ndarray, offset: float, member: int | None = None) -> int:
         """Id of the plane `normal . x = offset`, registering it if new."""
         n = _unit(normal)
         gid = -1
-        for k, g in enumerate(self.group_normals):
-            if np.abs(n - g).max() < _SAME_NORMAL:
-                gid = k
-                break
-            if np.abs(n + g).max() < _SAME_NORMAL:
-                gid, offset = k, -offset
-                break
+        if self.group_normals:
+            g = self._normals[: len(self.group_normals)]
+            same = np.flatnonzero(np.abs(g - n).max(axis=1) < _SAME_NORMAL)
+            flip = np.flatnonzero(np.abs(g + n).max(axis=1) < _SAME_NORMAL)
+            if len(same):
+                gid = int(same[0])
+            elif len(flip):
+                gid, offset = int(flip[0]), -offset
         if gid < 0:
             gid = len(self.group_normals)
+            if gid == len(self._normals):
+                self._normals = np.vstack([self._normals, np.zeros((max(gid, 8), 3))])
+            self._normals[gid] = n
             self.group_normals.append(n)
             self.group_planes.append([])
         pid = -1
@@ -441,6 +446,8 @@ class _Facets:
     cell_volume: np.ndarray
     cell_broken: np.ndarray  # (c,) bool: a facet degenerated when vertices merged
     multi: int  # facets shared by more than two cells (should be 0)
+    plane_normal: np.ndarray  # (P, 3) normals of the plane ids
+    plane_offset: np.ndarray  # (P,) offsets of the plane ids
 
 
 def _build_facets(cells: list[_Cell], planes: _Planes, merge_r: float) -> _Facets:
@@ -490,25 +497,23 @@ def _build_facets(cells: list[_Cell], planes: _Planes, merge_r: float) -> _Facet
         else:
             multi += 1
     return _Facets(coords, cell_arr, label_arr, orient, fids, other, normal, area, centroid,
-                   volume, broken, multi)
+                   volume, broken, multi, np.asarray(planes.normal).reshape(-1, 3),
+                   np.asarray(planes.offset, dtype=float))
 
 
-def _real_tags(
-    fac: _Facets, planes: _Planes, joints: list[_Joint]
-) -> tuple[np.ndarray, np.ndarray]:
-    """`(f,) int` joint tag and `(f,) bool` real flag of each matched facet on a joint."""
-    tags = np.full(len(fac.label), -1, dtype=np.int64)
-    real = np.zeros(len(fac.label), dtype=bool)
+def _real_joints(fac: _Facets, planes: _Planes, joints: list[_Joint]) -> np.ndarray:
+    """`(f,) int`: the joint each matched facet is a real part of, or -1 (fictitious)."""
+    owner = np.full(len(fac.label), -1, dtype=np.int64)
     matched = np.flatnonzero(fac.other >= 0)
-    for pid in np.unique(fac.label[matched]).tolist():
-        sel = matched[fac.label[matched] == pid]
-        todo = np.ones(len(sel), dtype=bool)
+    matched = matched[np.argsort(fac.label[matched], kind="stable")]
+    pids, starts = np.unique(fac.label[matched], return_index=True)
+    groups = np.split(matched, starts[1:]) if len(matched) else []
+    for pid, sel in zip(pids.tolist(), groups, strict=True):
         for j in planes.members[pid]:
+            todo = owner[sel] < 0
             inside = todo & joints[j].contains(fac.centroid[sel])
-            tags[sel[inside]] = joints[j].tag
-            real[sel[inside]] = True
-            todo &= ~inside
-    return np.where(real, tags, -1), real
+            owner[sel[inside]] = j
+    return owner
 
 
 # --------------------------------------------------------------------------- blocks
@@ -600,6 +605,7 @@ def _build_block(
     fac: _Facets,
     group_of: np.ndarray,
     tag_of_pair: np.ndarray,
+    eps: float,
 ) -> Polyhedron:
     """The block made of `cells`: merged surface faces, pieces if concave."""
     gid = group_of[cells[0]]
@@ -624,23 +630,106 @@ def _build_block(
             labels[k] = int(fac.label[f])
         faces = _drop_collinear(faces, labels)
     surf_ids = sorted({v for f in faces for v in f})
-    extra = sorted({v for c in cells for f in cell_facets[c] for v in fac.ids[f]}
-                   - set(surf_ids)) if len(cells) > 1 else []
-    order = surf_ids + extra
-    local = {v: k for k, v in enumerate(order)}
+    local = {v: k for k, v in enumerate(surf_ids)}
     block = Polyhedron.from_faces(
         fac.coords[surf_ids], [[local[v] for v in f] for f in faces], tags
     )
     if len(cells) == 1 or block.is_convex:
         return block
+    parts = [_piece_faces(part, cell_facets, fac, face_of)
+             for part in _convex_parts(cells, cell_facets, fac, face_of, eps)]
+    extra = sorted({v for pfaces, _ in parts for f in pfaces for v in f} - set(surf_ids))
+    local.update({v: len(surf_ids) + k for k, v in enumerate(extra)})
     pieces = []
-    for c in cells:
-        pf = cell_facets[c]
-        indptr, indices = faces_to_csr([[local[v] for v in fac.ids[f]] for f in pf])
-        surf = np.array([face_of.get(f, -1) for f in pf], dtype=np.int64)
-        pieces.append(ConvexPiece(indptr, indices, surf))
-    return Polyhedron(fac.coords[order], block.face_indptr, block.face_indices,
+    for pfaces, psurf in parts:
+        indptr, indices = faces_to_csr([[local[v] for v in f] for f in pfaces])
+        pieces.append(ConvexPiece(indptr, indices, np.asarray(psurf, dtype=np.int64)))
+    return Polyhedron(fac.coords[surf_ids + extra], block.face_indptr, block.face_indices,
                       block.face_tags, tuple(pieces))
+
+
+def _piece_faces(
+    part: list[int], cell_facets: list[list[int]], fac: _Facets, face_of: dict[int, int]
+) -> tuple[list[list[int]], list[int]]:
+    """Faces (vertex-id loops) of a convex part of glued cells and their block faces (-1)."""
+    inner = set(part)
+    pf = [f for c in part for f in cell_facets[c]
+          if fac.other[f] < 0 or int(fac.cell[fac.other[f]]) not in inner]
+    pfaces, psurf, pface_of = _merge_coplanar(pf, fac, {f: face_of.get(f, -1) for f in pf})
+    plabels = [0] * len(pfaces)
+    for f, k in pface_of.items():
+        plabels[k] = int(fac.label[f])
+    return _drop_collinear(pfaces, plabels), psurf
+
+
+def _inner(f: int, fac: _Facets, cellset: set[int], find, parts: tuple[int, int]) -> bool:
+    """Whether facet `f` lies between two cells of the parts `parts` (of one block)."""
+    o = int(fac.other[f])
+    if o < 0:
+        return False
+    c = int(fac.cell[o])
+    return c in cellset and find(c) in parts
+
+
+def _convex_parts(
+    cells: list[int], cell_facets: list[list[int]], fac: _Facets, face_of: dict[int, int],
+    eps: float,
+) -> list[list[int]]:
+    """Greedily glue adjacent cells of a block while their union stays convex.
+
+    Two convex parts sharing a facet plane form a convex union when each one's vertices
+    satisfy all face half-spaces of the other except the shared plane. A glued part must
+    also keep each of its face planes on a single block face (for `face_surface`).
+    """
+    cellset = set(cells)
+    parent = {c: c for c in cells}
+    verts = {c: {v for f in cell_facets[c] for v in fac.ids[f]} for c in cells}
+    bound = {c: set(cell_facets[c]) for c in cells}
+
+    def find(x: int) -> int:
+        while parent[x] != x:
+            parent[x] = parent[parent[x]]
+            x = parent[x]
+        return x
+
+    def halfspaces(fs: set[int]) -> tuple[np.ndarray, np.ndarray]:
+        lab = fac.label[list(fs)]
+        ori = fac.orient[list(fs)]
+        return fac.plane_normal[lab] * ori[:, None], fac.plane_offset[lab] * ori
+
+    def inside(vs: set[int], fs: set[int], skip: int) -> bool:
+        keep = {f for f in fs if fac.label[f] != skip}
+        n, off = halfspaces(keep)
+        x = fac.coords[list(vs)]
+        return bool((x @ n.T - off[None]).max(initial=-1.0) <= eps)
+
+    pairs = sorted(
+        ((float(fac.area[f]), f) for c in cells for f in cell_facets[c]
+         if fac.other[f] > f and int(fac.cell[fac.other[f]]) in cellset),
+        reverse=True,
+    )
+    for _, f in pairs:
+        a, b = find(int(fac.cell[f])), find(int(fac.cell[fac.other[f]]))
+        if a == b:
+            continue
+        skip = int(fac.label[f])
+        if not (inside(verts[b], bound[a], skip) and inside(verts[a], bound[b], skip)):
+            continue
+        union = {g for g in bound[a] | bound[b] if not _inner(g, fac, cellset, find, (a, b))}
+        where: dict[tuple[int, int], set[int]] = {}
+        for g in union:
+            where.setdefault((int(fac.label[g]), int(fac.orient[g])), set()).add(
+                face_of.get(g, -1))
+        if any(len(v) > 1 for v in where.values()):
+            continue
+        parent[b] = a
+        verts[a] |= verts.pop(b)
+        bound[a] = union
+        del bound[b]
+    parts: dict[int, list[int]] = {}
+    for c in cells:
+        parts.setdefault(find(c), []).append(c)
+    return list(parts.values())
 
 
 def _joints_of(joints: Sequence[JointPlane], planes: _Planes) -> tuple[list[_Joint], list[int]]:
@@ -691,37 +780,95 @@ def _inside(cells: list[_Cell], domain: Polyhedron) -> list[_Cell]:
     return [c for c, x in zip(cells, w, strict=True) if x > 0.5]
 
 
+def _components(n: int, rows: np.ndarray, cols: np.ndarray) -> np.ndarray:
+    """`(n,) int` connected component of each node of an undirected edge list."""
+    graph = coo_matrix((np.ones(len(rows)), (rows, cols)), shape=(n, n))
+    return connected_components(graph, directed=False)[1]
+
+
 def _groups(
     fac: _Facets, real: np.ndarray, n_cells: int, sliver: float, warnings: list[str]
 ) -> tuple[np.ndarray, np.ndarray]:
-    """Union cells across fictitious facets; slivers join their largest neighbour.
+    """Union cells across fictitious facets; sliver blocks join their largest neighbour.
 
-    Returns `(c,) int` group per cell and `(c,) bool` cells dropped.
+    Returns `(c,) int` group per cell and `(c,) bool` cells dropped (isolated slivers).
     """
-    pair = (fac.other >= 0) & (fac.other > np.arange(len(fac.other)))
-    glue = pair & ~real
-    rows = [fac.cell[glue]]
-    cols = [fac.cell[fac.other[glue]]]
-    small = np.flatnonzero((fac.cell_volume < sliver) | fac.cell_broken)
+    glue = (fac.other > np.arange(len(fac.other))) & ~real
+    rows, cols = fac.cell[glue], fac.cell[fac.other[glue]]
+    group = _components(n_cells, rows, cols)
+    gvol = np.bincount(group, weights=fac.cell_volume)
+    small = gvol < sliver
     dropped = np.zeros(n_cells, dtype=bool)
-    n_merged = 0
-    for c in small.tolist():
-        mine = np.flatnonzero((fac.cell == c) & (fac.other >= 0))
-        if len(mine) == 0:
-            dropped[c] = True
-            continue
-        best = mine[np.argmax(fac.area[mine])]
-        rows.append(np.array([c]))
-        cols.append(np.array([fac.cell[fac.other[best]]]))
-        n_merged += 1
-    if n_merged:
-        warnings.append(f"{n_merged} sliver cell(s) merged into a neighbour block")
+    if not small.any():
+        return group, dropped
+    g_own = group[fac.cell]
+    cand = np.flatnonzero(small[g_own] & (fac.other >= 0))
+    cand = cand[group[fac.cell[fac.other[cand]]] != g_own[cand]]
+    order = cand[np.lexsort((-fac.area[cand], g_own[cand]))]
+    _, first = np.unique(g_own[order], return_index=True)
+    best = order[first]
+    dropped = small[group] & ~np.isin(group, g_own[best])
+    if len(best):
+        warnings.append(f"{len(best)} sliver block(s) merged into a neighbour block")
     if dropped.any():
-        warnings.append(f"{int(dropped.sum())} isolated sliver cell(s) dropped")
-    r, c = np.concatenate(rows), np.concatenate(cols)
-    graph = coo_matrix((np.ones(len(r)), (r, c)), shape=(n_cells, n_cells))
-    _, group = connected_components(graph, directed=False)
-    return group, dropped
+        warnings.append(f"{len(np.unique(group[dropped]))} isolated sliver block(s) dropped")
+    rows = np.concatenate([rows, fac.cell[best]])
+    cols = np.concatenate([cols, fac.cell[fac.other[best]]])
+    return _components(n_cells, rows, cols), dropped
+
+
+def _closed_cells(fac: _Facets, cells: np.ndarray, scale: float, tol: Tolerances) -> np.ndarray:
+    """`(k,) bool`: which single cells pass the checks of `Polyhedron.problems` in bulk.
+
+    A cell is planar and convex by construction; this checks that it is closed and
+    consistently oriented, has no zero-area facet and a positive volume, and is not so
+    small that the block-relative planarity tolerance could fail (those get the full check).
+    """
+    if len(cells) == 0:
+        return np.zeros(0, dtype=bool)
+    pos = np.full(len(fac.cell_volume), -1, dtype=np.int64)
+    pos[cells] = np.arange(len(cells))
+    sel = np.flatnonzero(pos[fac.cell] >= 0)
+    ok = (fac.cell_volume[cells] > 0) & ~fac.cell_broken[cells]
+    small_area = sel[fac.area[sel] <= tol.length("point_merge", scale) ** 2]
+    ok[pos[fac.cell[small_area]]] = False
+    indptr, indices = faces_to_csr([fac.ids[f] for f in sel.tolist()])
+    counts = np.diff(indptr)
+    owner = np.repeat(pos[fac.cell[sel]], counts)
+    nxt = np.arange(len(indices)) + 1
+    nxt[indptr[1:] - 1] = indptr[:-1]
+    a, b = indices, indices[nxt]
+    rows = np.stack([owner, np.minimum(a, b), np.maximum(a, b)], axis=1)
+    _, inv, cnt = np.unique(rows, axis=0, return_inverse=True, return_counts=True)
+    inv = inv.reshape(-1)
+    fwd = np.bincount(inv, weights=(a < b).astype(float), minlength=len(cnt))
+    bad_edge = (cnt != 2) | (fwd != 1)
+    ok[owner[bad_edge[inv]]] = False
+    span = np.zeros((len(cells), 2, 3))
+    pts = fac.coords[indices]
+    span[:, 0] = np.inf
+    span[:, 1] = -np.inf
+    np.minimum.at(span[:, 0], owner, pts)
+    np.maximum.at(span[:, 1], owner, pts)
+    ok &= (span[:, 1] - span[:, 0]).max(axis=1) > 1e-2 * scale
+    return ok
+
+
+def _idle_joint_warnings(joints: Sequence[JointPlane], separating: set[int]) -> list[str]:
+    """One warning per joint tag whose planes (some or all) separate no blocks."""
+    planes_of: dict[int, list[int]] = {}
+    for j, jp in enumerate(joints):
+        planes_of.setdefault(int(jp.tag), []).append(j)
+    out = []
+    for tag, js in planes_of.items():
+        idle = [j for j in js if j not in separating]
+        if len(js) == 1 and idle:
+            out.append(f"joint {tag} cuts nothing (joint plane {idle[0]})")
+        elif len(idle) == len(js):
+            out.append(f"joint {tag}: none of its {len(js)} planes cuts anything")
+        elif idle:
+            out.append(f"joint {tag}: {len(idle)} of its {len(js)} planes cut nothing")
+    return out
 
 
 def cut_blocks(
@@ -745,7 +892,9 @@ def cut_blocks(
     fac = _build_facets(cells, planes, tol.length("point_merge", scale))
     if fac.multi:
         warnings.append(f"{fac.multi} facet(s) shared by more than two cells (degenerate cut)")
-    tag_of_pair, real = _real_tags(fac, planes, jlist)
+    owner = _real_joints(fac, planes, jlist)
+    real = owner >= 0
+    tag_of_pair = np.where(real, np.array([j.tag for j in jlist] + [-1])[owner], -1)
     vol_dom = abs(domain.volume)
     sliver = tol.sliver_volume * vol_dom
     group, dropped = _groups(fac, real, len(cells), sliver, warnings)
@@ -756,14 +905,16 @@ def cut_blocks(
     for c, g in enumerate(group.tolist()):
         if not dropped[c]:
             members.setdefault(g, []).append(c)
+    singles = np.array([cs[0] for cs in members.values() if len(cs) == 1], dtype=np.int64)
+    trusted = set(singles[_closed_cells(fac, singles, scale, tol)].tolist())
     blocks: list[Polyhedron] = []
     n_small = n_bad = 0
     for cs in members.values():
         if float(fac.cell_volume[cs].sum()) < sliver:
             n_small += 1
             continue
-        block = _build_block(cs, cell_facets, fac, group, tag_of_pair)
-        if block.problems(tol):
+        block = _build_block(cs, cell_facets, fac, group, tag_of_pair, planes.eps)
+        if not (len(cs) == 1 and cs[0] in trusted) and block.problems(tol):
             n_bad += 1
             continue
         blocks.append(block)
@@ -771,10 +922,8 @@ def cut_blocks(
         warnings.append(f"{n_small} sliver block(s) dropped")
     if n_bad:
         warnings.append(f"{n_bad} block(s) dropped because the cut produced invalid geometry")
-    separating = {int(t) for b in blocks for t in b.face_tags if t >= 0}
-    for j, jp in enumerate(joints):
-        if int(jp.tag) not in separating:
-            warnings.append(f"joint {j} (tag {jp.tag}) cuts nothing")
+    apart = real & ~dropped[fac.cell] & (group[fac.cell] != group[fac.cell[fac.other]])
+    warnings.extend(_idle_joint_warnings(joints, set(owner[apart].tolist())))
     return CutResult(blocks, warnings)
 
 

@@ -55,8 +55,16 @@ ENERGY_NAMES = (
 )
 #: HDF5 file-format bounds: 1.10 is the oldest that has SWMR; ParaView >= 5.x reads it
 LIBVER = ("v110", "v110")
-_CHUNK_TARGET = 256 * 1024  # bytes per chunk aimed at
-_CHUNK_MAX = 1024 * 1024
+#: Chunking policy. HDF5 in SWMR mode does not reuse freed file space, so a compressed chunk
+#: that is rewritten (it grew) leaks its old copy. Steps of at least _COMPRESS_MIN bytes get
+#: their own compressed chunks, written once; smaller ones share uncompressed chunks of about
+#: _SHARED_CHUNK bytes, rewritten in place.
+_COMPRESS_MIN = 4096
+_SHARED_CHUNK = 8 * 1024
+_CHUNK_MAX = 8 * 1024 * 1024
+#: contacts (a variable count per step) are compressed in models of at least this many
+#: blocks, in chunks of `n_blocks` rows (a rewritten partial chunk leaks < 1 chunk per step)
+_CONTACT_COMPRESS_BLOCKS = 100
 _STR = h5py.string_dtype("utf-8")
 _HISTORY_SHAPES = {"centroid": (3,), "rotation": (3,), "affine": (3, 3),
                    "velocity": (12,), "stress": (6,)}
@@ -86,14 +94,6 @@ def _json_default(obj: Any) -> Any:
     if isinstance(obj, Path):
         return str(obj)
     raise TypeError(f"{type(obj).__name__} is not JSON serializable")
-
-
-def _chunk_rows(row_bytes: int, rows_per_step: int = 1) -> int:
-    """Rows per chunk along the growing axis: whole steps when they fit, ~256 KiB."""
-    step_bytes = max(1, row_bytes * rows_per_step)
-    if step_bytes <= _CHUNK_MAX:
-        return rows_per_step * max(1, _CHUNK_TARGET // step_bytes)
-    return max(1, _CHUNK_MAX // max(1, row_bytes))
 
 
 # --------------------------------------------------------------------------- writer
@@ -210,18 +210,34 @@ class ResultWriter:
         self._ended = False
         self._n_contacts = 0
         self._ignored_energies: set[str] = set()
+        self._h: dict[str, h5py.Dataset] | None = None
+        self._nf = 0
+        self._n_blocks = 0
 
     # --- helpers
     def _ds(self, group: h5py.Group, name: str, tail: tuple[int, ...], dtype: Any,
-            rows_per_step: int = 1, compress: bool = True) -> h5py.Dataset:
-        """An empty dataset growing along axis 0, `(0, *tail)`."""
-        row_bytes = int(np.prod(tail, dtype=np.int64)) * np.dtype(dtype).itemsize
-        rows = _chunk_rows(row_bytes, rows_per_step)
+            rows_per_step: int = 1, contact: bool = False) -> h5py.Dataset:
+        """An empty dataset `(0, *tail)` growing along axis 0, chunked by the policy above."""
+        item = np.dtype(dtype).itemsize
+        row_bytes = int(np.prod(tail, dtype=np.int64)) * item
+        step_bytes = max(1, row_bytes * rows_per_step)
         tail_chunk = tail
-        if row_bytes > _CHUNK_MAX:  # one row too big (huge n): split the block axis as well
-            tail_chunk = (max(1, _CHUNK_MAX // (row_bytes // tail[0])), *tail[1:])
+        if contact:
+            compress = bool(self.compression) and self._n_blocks >= _CONTACT_COMPRESS_BLOCKS
+            rows = max(256, self._n_blocks) if compress else max(1, _SHARED_CHUNK // row_bytes)
+        else:
+            compress = bool(self.compression) and step_bytes >= _COMPRESS_MIN
+            if not compress:
+                rows = rows_per_step * max(1, _SHARED_CHUNK // step_bytes)
+            elif step_bytes <= _CHUNK_MAX:
+                rows = rows_per_step  # exactly one step per chunk, written once
+            elif rows_per_step > 1:  # a huge flat step: chunks straddle steps
+                rows = max(1, _CHUNK_MAX // row_bytes)
+            else:  # one huge (n, ...) row: one step, split along the block axis
+                rows = 1
+                tail_chunk = (max(1, _CHUNK_MAX // (row_bytes // tail[0])), *tail[1:])
         kw: dict[str, Any] = {}
-        if compress and self.compression:
+        if compress:
             kw = {"compression": "gzip", "compression_opts": self.compression_level,
                   "shuffle": True}
         return group.create_dataset(name, shape=(0, *tail), maxshape=(None, *tail),
@@ -229,13 +245,22 @@ class ResultWriter:
 
     @staticmethod
     def _append(ds: h5py.Dataset, values: np.ndarray) -> None:
-        n = ds.shape[0]
-        values = np.asarray(values)
-        if values.ndim == ds.ndim - 1:
+        """Append rows `values (m, *tail)` (or one row `(*tail)`) to a growing dataset.
+
+        Uses the low-level API: h5py's high-level resize and slicing cost ~10x more.
+        """
+        dsid = ds.id
+        space = dsid.get_space()
+        shape = space.shape
+        values = np.ascontiguousarray(values, dtype=ds.dtype)
+        if values.ndim == len(shape) - 1:
             values = values[None]
-        ds.resize(n + len(values), axis=0)
-        if len(values):
-            ds[n:] = values
+        n, m = shape[0], len(values)
+        dsid.set_extent((n + m, *shape[1:]))
+        if m:
+            fspace = dsid.get_space()
+            fspace.select_hyperslab((n,) + (0,) * (len(shape) - 1), values.shape)
+            dsid.write(h5py.h5s.create_simple(values.shape), fspace, values)
 
     # --- Recorder protocol
     def begin(self, model: Model, scene_json: str | None = None) -> None:
@@ -245,10 +270,12 @@ class ResultWriter:
         if self.path.exists() and not self.overwrite:
             raise FileExistsError(f"{self.path} exists; results are never rewritten in place")
         self.path.parent.mkdir(parents=True, exist_ok=True)
+        self.record_contacts = self.record_contacts and model.controls.record_contacts
         f = h5py.File(self.path, "w", libver=LIBVER)
         self._file = f
         st = self._static = _flatten_model(model)
         n, nv = len(model.blocks), len(st.vertices)
+        self._n_blocks = n
 
         schema = self.schema_version
         if schema is None and scene_json:
@@ -286,14 +313,14 @@ class ResultWriter:
         g["volume"] = np.array([b.polyhedron.volume for b in model.blocks], dtype=float)
 
         g = f.create_group("steps")
-        self._ds(g, "step", (), np.int64, compress=False)
-        self._ds(g, "time", (), np.float64, compress=False)
-        self._ds(g, "dt", (), np.float64, compress=False)
-        self._ds(g, "open_close_iterations", (), np.int64, compress=False)
-        self._ds(g, "max_penetration", (), np.float64, compress=False)
+        self._ds(g, "step", (), np.int64)
+        self._ds(g, "time", (), np.float64)
+        self._ds(g, "dt", (), np.float64)
+        self._ds(g, "open_close_iterations", (), np.int64)
+        self._ds(g, "max_penetration", (), np.float64)
         e = g.create_group("energies")
         for name in ENERGY_NAMES:
-            self._ds(e, name, (), np.float64, compress=False)
+            self._ds(e, name, (), np.float64)
 
         g = f.create_group("history")
         for name, tail in _HISTORY_SHAPES.items():
@@ -301,11 +328,11 @@ class ResultWriter:
 
         g = f.create_group("contacts")
         g.attrs["recorded"] = bool(self.record_contacts)
-        so = self._ds(g, "step_offsets", (), np.int64, compress=False)
+        so = self._ds(g, "step_offsets", (), np.int64)
         self._append(so, np.zeros(1, np.int64))
         if self.record_contacts:
             for name, (tail, dtype) in _CONTACT_FIELDS.items():
-                self._ds(g, name, tail, dtype)
+                self._ds(g, name, tail, dtype, contact=True)
 
         self._begin_vtkhdf(f, n, nv)
         f.flush()
@@ -318,13 +345,13 @@ class ResultWriter:
         v = f.create_group("VTKHDF")
         v.attrs["Version"] = np.array(VTKHDF_VERSION, dtype=np.int64)
         v.attrs.create("Type", np.bytes_("PolyData"), dtype=h5py.string_dtype("ascii", 8))
-        self._ds(v, "NumberOfPoints", (), np.int64, compress=False)
+        self._ds(v, "NumberOfPoints", (), np.int64)
         self._ds(v, "Points", (3,), np.float64, rows_per_step=max(nv, 1))
         nf = len(st.face_offsets) - 1
         for name in ("Vertices", "Lines", "Polygons", "Strips"):
             c = v.create_group(name)
-            self._ds(c, "NumberOfCells", (), np.int64, compress=False)
-            self._ds(c, "NumberOfConnectivityIds", (), np.int64, compress=False)
+            self._ds(c, "NumberOfCells", (), np.int64)
+            self._ds(c, "NumberOfConnectivityIds", (), np.int64)
             if name == "Polygons":
                 c["Offsets"] = st.face_offsets
                 c["Connectivity"] = st.face_connectivity
@@ -340,25 +367,37 @@ class ResultWriter:
         cd["face_tag"] = st.face_tags
         s = v.create_group("Steps")
         s.attrs["NSteps"] = np.int64(0)
-        self._ds(s, "Values", (), np.float64, compress=False)
-        self._ds(s, "PartOffsets", (), np.int64, compress=False)
-        self._ds(s, "NumberOfParts", (), np.int64, compress=False)
-        self._ds(s, "PointOffsets", (), np.int64, compress=False)
-        self._ds(s, "CellOffsets", (4,), np.int64, compress=False)
-        self._ds(s, "ConnectivityIdOffsets", (4,), np.int64, compress=False)
+        self._ds(s, "Values", (), np.float64)
+        self._ds(s, "PartOffsets", (), np.int64)
+        self._ds(s, "NumberOfParts", (), np.int64)
+        self._ds(s, "PointOffsets", (), np.int64)
+        self._ds(s, "CellOffsets", (4,), np.int64)
+        self._ds(s, "ConnectivityIdOffsets", (4,), np.int64)
         po = s.create_group("PointDataOffsets")
         for name in ("block_id", "displacement", "velocity"):
-            self._ds(po, name, (), np.int64, compress=False)
+            self._ds(po, name, (), np.int64)
         co = s.create_group("CellDataOffsets")
         for name in ("block_id", "face_tag"):
-            self._ds(co, name, (), np.int64, compress=False)
+            self._ds(co, name, (), np.int64)
         self._nf = nf
+
+    def _handles(self) -> dict[str, h5py.Dataset]:
+        """Every growing dataset by its path (looked up once; lookups cost per step)."""
+        f = self._file
+        assert f is not None
+        out: dict[str, h5py.Dataset] = {}
+        f.visititems(lambda name, obj: out.__setitem__(name, obj)
+                     if isinstance(obj, h5py.Dataset) and obj.maxshape[:1] == (None,) else None)
+        return out
 
     def record(self, frame: Frame) -> None:
         """Append one step to every dataset; flush (durable) every `flush_every` steps."""
         f, st = self._file, self._static
         if f is None or st is None or self._ended:
             raise RuntimeError("record() needs begin() first and no end() yet")
+        if self._h is None:
+            self._h = self._handles()
+        h, app = self._h, self._append
         n = len(st.centroid)
         arrays = {
             "centroid": np.asarray(frame.centroids, float),
@@ -372,15 +411,13 @@ class ResultWriter:
                 raise ValueError(f"frame.{name} has shape {arrays[name].shape}, "
                                  f"expected {(n, *tail)}")
         k = self.n_recorded
-        hist = f["history"]
         for name, a in arrays.items():
-            self._append(hist[name], a)
+            app(h[f"history/{name}"], a)
 
         # contacts
-        g = f["contacts"]
         cs = frame.contacts
         c = 0 if cs is None or not self.record_contacts else len(cs)
-        if self.record_contacts and c:
+        if c:
             assert cs is not None
             vals = {name: getattr(cs, name) for name in _CONTACT_FIELDS
                     if name not in ("normal_force", "shear_force")}
@@ -390,9 +427,9 @@ class ResultWriter:
                                    else np.asarray(frame.shear_force, float))
             for name, (tail, dtype) in _CONTACT_FIELDS.items():
                 a = np.asarray(vals[name]).astype(dtype, copy=False).reshape(c, *tail)
-                self._append(g[name], a)
+                app(h[f"contacts/{name}"], a)
         self._n_contacts += c
-        self._append(g["step_offsets"], np.array([self._n_contacts], np.int64))
+        app(h["contacts/step_offsets"], np.array([self._n_contacts], np.int64))
 
         # VTKHDF: points, point displacement and velocity
         vb = st.vertex_block
@@ -400,45 +437,43 @@ class ResultWriter:
         pts = transform_points(st.vertices, st.centroid[vb], cent[vb], aff[vb])
         vel = point_velocities(pts, cent[vb], arrays["velocity"][vb])
         nv = len(pts)
-        v = f["VTKHDF"]
-        self._append(v["Points"], pts)
-        self._append(v["PointData/displacement"], pts - st.vertices)
-        self._append(v["PointData/velocity"], vel)
-        self._append(v["NumberOfPoints"], np.array([nv]))
+        one, zero, zero4 = np.ones(1, np.int64), np.zeros(1, np.int64), np.zeros((1, 4), np.int64)
+        app(h["VTKHDF/Points"], pts)
+        app(h["VTKHDF/PointData/displacement"], pts - st.vertices)
+        app(h["VTKHDF/PointData/velocity"], vel)
+        app(h["VTKHDF/NumberOfPoints"], one * nv)
         for name in ("Vertices", "Lines", "Strips"):
-            self._append(v[name]["NumberOfCells"], np.zeros(1, np.int64))
-            self._append(v[name]["NumberOfConnectivityIds"], np.zeros(1, np.int64))
-        self._append(v["Polygons/NumberOfCells"], np.array([self._nf]))
-        self._append(v["Polygons/NumberOfConnectivityIds"],
-                     np.array([len(st.face_connectivity)]))
-        s = v["Steps"]
-        self._append(s["Values"], np.array([frame.time], float))
-        self._append(s["PartOffsets"], np.array([k]))
-        self._append(s["NumberOfParts"], np.array([1]))
-        self._append(s["PointOffsets"], np.array([k * nv]))
-        self._append(s["CellOffsets"], np.zeros((1, 4), np.int64))
-        self._append(s["ConnectivityIdOffsets"], np.zeros((1, 4), np.int64))
-        self._append(s["PointDataOffsets/block_id"], np.zeros(1, np.int64))
-        self._append(s["PointDataOffsets/displacement"], np.array([k * nv]))
-        self._append(s["PointDataOffsets/velocity"], np.array([k * nv]))
-        self._append(s["CellDataOffsets/block_id"], np.zeros(1, np.int64))
-        self._append(s["CellDataOffsets/face_tag"], np.zeros(1, np.int64))
-        s.attrs.modify("NSteps", np.int64(k + 1))
+            app(h[f"VTKHDF/{name}/NumberOfCells"], zero)
+            app(h[f"VTKHDF/{name}/NumberOfConnectivityIds"], zero)
+        app(h["VTKHDF/Polygons/NumberOfCells"], one * self._nf)
+        app(h["VTKHDF/Polygons/NumberOfConnectivityIds"], one * len(st.face_connectivity))
+        s = "VTKHDF/Steps/"
+        app(h[s + "Values"], np.array([frame.time], float))
+        app(h[s + "PartOffsets"], one * k)
+        app(h[s + "NumberOfParts"], one)
+        app(h[s + "PointOffsets"], one * (k * nv))
+        app(h[s + "CellOffsets"], zero4)
+        app(h[s + "ConnectivityIdOffsets"], zero4)
+        app(h[s + "PointDataOffsets/block_id"], zero)
+        app(h[s + "PointDataOffsets/displacement"], one * (k * nv))
+        app(h[s + "PointDataOffsets/velocity"], one * (k * nv))
+        app(h[s + "CellDataOffsets/block_id"], zero)
+        app(h[s + "CellDataOffsets/face_tag"], zero)
+        f["VTKHDF/Steps"].attrs.modify("NSteps", np.int64(k + 1))
 
-        # per-step scalars; `step` last: a reader counts complete steps from it
-        sg = f["steps"]
+        # per-step scalars; `step` last (a reader counts complete steps on all of them)
         for name in ENERGY_NAMES:
-            self._append(sg["energies"][name], np.array([frame.energies.get(name, np.nan)]))
+            app(h[f"steps/energies/{name}"], np.array([frame.energies.get(name, np.nan)]))
         extra = set(frame.energies) - set(ENERGY_NAMES) - self._ignored_energies
         if extra:
             log.warning("energies %s are not in the result layout and are not stored",
                         sorted(extra))
             self._ignored_energies |= extra
-        self._append(sg["time"], np.array([frame.time], float))
-        self._append(sg["dt"], np.array([frame.dt], float))
-        self._append(sg["open_close_iterations"], np.array([frame.open_close_iterations]))
-        self._append(sg["max_penetration"], np.array([frame.max_penetration], float))
-        self._append(sg["step"], np.array([frame.step]))
+        app(h["steps/time"], np.array([frame.time], float))
+        app(h["steps/dt"], np.array([frame.dt], float))
+        app(h["steps/open_close_iterations"], one * frame.open_close_iterations)
+        app(h["steps/max_penetration"], np.array([frame.max_penetration], float))
+        app(h["steps/step"], one * frame.step)
         self.n_recorded = k + 1
         if self.n_recorded % self.flush_every == 0:
             f.flush()
@@ -565,6 +600,7 @@ class Result:
         return self._cache[path]
 
     def close(self) -> None:
+        """Close the file (also done by the context manager)."""
         self._file.close()
 
     def __enter__(self) -> Result:
@@ -581,6 +617,7 @@ class Result:
 
     @property
     def message(self) -> str:
+        """Why the run ended as it did (empty while running)."""
         return _text(self._file.attrs.get("message", ""))
 
     @property
@@ -597,6 +634,7 @@ class Result:
 
     @property
     def contacts_recorded(self) -> bool:
+        """Whether `/contacts` holds contact rows (`record_contacts` of the writer)."""
         return bool(self._file["contacts"].attrs["recorded"])
 
     @property
@@ -642,11 +680,16 @@ class Result:
         out["displacement"] = out["centroid"] - self.initial_centroids[i]
         return out
 
-    def _step(self, step_index: int) -> int:
+    def resolve_step(self, step_index: int) -> int:
+        """Step index in `0..n_steps-1` (negative counts from the end); IndexError outside."""
         k = int(step_index)
         if not -self.n_steps <= k < self.n_steps:
             raise IndexError(f"step index {k} out of range for {self.n_steps} steps")
         return k % self.n_steps
+
+    def centroids(self, step_index: int) -> np.ndarray:
+        """Centroids `(n, 3)` of all blocks at a step."""
+        return self._file["history/centroid"][self.resolve_step(step_index)]
 
     def initial_vertices(self) -> list[np.ndarray]:
         """Initial surface vertices `(k_b, 3)` of each block."""
@@ -661,7 +704,7 @@ class Result:
 
     def all_vertices(self, step_index: int) -> np.ndarray:
         """Surface vertices of all blocks `(V, 3)` at a step, in `/blocks/vertices` order."""
-        k = self._step(step_index)
+        k = self.resolve_step(step_index)
         h = self._file["history"]
         cent, aff = h["centroid"][k], h["affine"][k]
         vb = self._vblock
@@ -675,7 +718,7 @@ class Result:
         """Contacts of one step as arrays (`block_i (c,)`, `point_i (c,3)`, ... `shear_force`)."""
         if not self.contacts_recorded:
             raise ValueError("contacts were not recorded for this run (record_contacts=False)")
-        k = self._step(step_index)
+        k = self.resolve_step(step_index)
         g = self._file["contacts"]
         a, b = g["step_offsets"][k: k + 2]
         return {name: g[name][a:b] for name in _CONTACT_FIELDS}
@@ -684,3 +727,58 @@ class Result:
 def open_result(path: str | os.PathLike[str]) -> Result:
     """Open a result file read-only (also one still being written or left by a killed run)."""
     return Result(path)
+
+
+def _growing_rows(name: str, n: int, nv: int, nc: int) -> int:
+    """Rows the first `n` steps occupy in the growing dataset `name` (absolute HDF5 path)."""
+    if name in ("/VTKHDF/Points", "/VTKHDF/PointData/displacement",
+                "/VTKHDF/PointData/velocity"):
+        return n * nv
+    if name == "/contacts/step_offsets":
+        return n + 1
+    if name.startswith("/contacts/"):
+        return nc
+    return n
+
+
+def recover_result(src: str | os.PathLike[str], dst: str | os.PathLike[str]) -> Path:
+    """Copy the complete steps of a killed run's file into a new, closed file at `dst`.
+
+    A killed SWMR writer leaves its file marked as open, which only SWMR readers (this
+    module) accept; ParaView and h5dump need the copy. The status stays "running".
+    """
+    dst = Path(dst)
+    if dst.exists():
+        raise FileExistsError(f"{dst} exists")
+    with open_result(src) as r, h5py.File(dst, "x", libver=LIBVER) as out:
+        fin = r._file
+        n = r.n_steps
+        nv = len(r._x0)
+        nc = int(fin["contacts/step_offsets"][n])
+
+        def copy(name: str, obj: h5py.Group | h5py.Dataset) -> None:
+            if isinstance(obj, h5py.Group):
+                g = out.require_group(name)
+                g.attrs.update(obj.attrs)
+                return
+            kw: dict[str, Any] = {"dtype": obj.dtype}
+            if obj.maxshape[:1] == (None,):
+                rows = _growing_rows(obj.name, n, nv, nc)
+                kw.update(shape=(rows, *obj.shape[1:]), maxshape=obj.maxshape,
+                          chunks=obj.chunks, compression=obj.compression,
+                          compression_opts=obj.compression_opts, shuffle=obj.shuffle)
+                ds = out.create_dataset(name, **kw)
+                slab = max(1, (16 << 20) // max(1, obj.dtype.itemsize * int(
+                    np.prod(obj.shape[1:], dtype=np.int64))))
+                for a in range(0, rows, slab):
+                    ds[a: min(rows, a + slab)] = obj[a: min(rows, a + slab)]
+            else:
+                ds = out.create_dataset(name, data=obj[()], **kw)
+            ds.attrs.update(obj.attrs)
+
+        out.attrs.update(fin.attrs)
+        fin.visititems(copy)
+        out["VTKHDF/Steps"].attrs["NSteps"] = np.int64(n)
+        out.attrs["recovered_from"] = str(Path(src).resolve())
+        out.attrs["message"] = f"recovered {n} complete steps of a run that did not end"
+    return dst

@@ -44,3 +44,33 @@ def prism(base: np.ndarray, height: float) -> Polyhedron:
     faces = [list(range(k - 1, -1, -1)), list(range(k, 2 * k))]
     faces += [[i, (i + 1) % k, k + (i + 1) % k, k + i] for i in range(k)]
     return Polyhedron.from_faces(verts, faces)
+
+
+def convex_hull(points: np.ndarray, decimals: int = 9) -> Polyhedron:
+    """The convex hull of `points (k, 3)` as a Polyhedron with one polygon per hull facet.
+
+    Coplanar hull triangles are merged into one face (vertices ordered counter-clockwise
+    seen from outside), so a box comes back with 6 quads, not 12 triangles.
+    """
+    from scipy.spatial import ConvexHull
+
+    p = np.asarray(points, float)
+    hull = ConvexHull(p)
+    used = np.unique(hull.simplices)
+    remap = np.full(len(p), -1)
+    remap[used] = np.arange(len(used))
+    verts = p[used]
+    eq = np.round(hull.equations, decimals)
+    _, group = np.unique(eq, axis=0, return_inverse=True)
+    faces = []
+    for g in np.unique(group):
+        tri = hull.simplices[group.ravel() == g]
+        ids = np.unique(tri)
+        normal = hull.equations[np.flatnonzero(group.ravel() == g)[0], :3]
+        centre = p[ids].mean(axis=0)
+        u = p[ids[0]] - centre
+        u /= np.linalg.norm(u)
+        v = np.cross(normal, u)
+        ang = np.arctan2((p[ids] - centre) @ v, (p[ids] - centre) @ u)
+        faces.append(remap[ids[np.argsort(ang)]].tolist())
+    return Polyhedron.from_faces(verts, faces)

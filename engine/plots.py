@@ -1,0 +1,184 @@
+"""PNG plots of a result file: block histories, energy balance, 3-D snapshots.
+
+Figures are built with the object API on the Agg canvas (no pyplot, no global state), so
+plotting is safe in servers and threads and never opens a window.
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import numpy as np
+from matplotlib.backends.backend_agg import FigureCanvasAgg
+from matplotlib.cm import ScalarMappable
+from matplotlib.colors import Normalize
+from matplotlib.figure import Figure
+from mpl_toolkits.mplot3d.art3d import Poly3DCollection
+
+from engine.results import Result, open_result
+
+PathLike = str | os.PathLike[str]
+#: energy terms drawn by plot_energy, with their labels
+ENERGY_LABELS = {
+    "kinetic": "kinetic", "elastic": "elastic strain", "contact": "contact springs",
+    "gravity_work": "work of gravity", "external_work": "work of loads",
+    "friction_dissipation": "friction dissipation",
+}
+MAX_HISTORY_BLOCKS = 8
+
+
+def _save(fig: Figure, path: PathLike, dpi: int = 120) -> Path:
+    """Render a figure to PNG with Agg and return the path."""
+    out = Path(path)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    FigureCanvasAgg(fig)
+    fig.savefig(out, dpi=dpi, format="png")
+    return out
+
+
+def _title(result: Result, text: str) -> str:
+    status = result.status
+    return text if status == "completed" else f"{text}  [run {status}]"
+
+
+def default_blocks(result: Result, limit: int = MAX_HISTORY_BLOCKS) -> list[int]:
+    """Free blocks with the largest final displacement (at most `limit`), in index order."""
+    free = np.flatnonzero(~result.fixed)
+    if result.n_steps == 0 or len(free) <= limit:
+        return free.tolist()
+    disp = np.linalg.norm(result.centroids(-1)[free] - result.initial_centroids[free], axis=1)
+    return sorted(free[np.argsort(-disp, kind="stable")[:limit]].tolist())
+
+
+def plot_histories(result: Result | PathLike, path: PathLike,
+                   blocks: list[str | int] | None = None) -> Path:
+    """Centroid displacement and velocity magnitudes vs time of some blocks.
+
+    `blocks`: names or indices (default: the free blocks that moved most, at most 8).
+    """
+    if not isinstance(result, Result):
+        with open_result(result) as r:
+            return plot_histories(r, path, blocks)
+    idx = default_blocks(result) if blocks is None else [result.block_index(b) for b in blocks]
+    fig = Figure(figsize=(8, 6), layout="constrained")
+    ax_u, ax_v = fig.subplots(2, 1, sharex=True)
+    for i in idx:
+        h = result.block_history(i)
+        label = result.block_names[i] or f"block {i}"
+        ax_u.plot(h["time"], np.linalg.norm(h["displacement"], axis=1), label=label)
+        ax_v.plot(h["time"], np.linalg.norm(h["velocity"][:, :3], axis=1), label=label)
+    ax_u.set_ylabel("displacement |u| (m)")
+    ax_v.set_ylabel("velocity |v| (m/s)")
+    ax_v.set_xlabel("time (s)")
+    ax_u.set_title(_title(result, "Block centroid histories"))
+    for ax in (ax_u, ax_v):
+        ax.grid(True, alpha=0.3)
+    if idx:
+        ax_u.legend(fontsize="small", loc="best")
+    else:
+        ax_u.text(0.5, 0.5, "no free blocks", ha="center", transform=ax_u.transAxes)
+    return _save(fig, path)
+
+
+def energy_residual(energies: dict[str, np.ndarray]) -> np.ndarray:
+    """Energy balance residual `(K,)` J: stored-energy change minus net work since step 0.
+
+    `Δ(kinetic + elastic + contact) - Δ(gravity_work + external_work - friction_dissipation)`;
+    terms that are missing or NaN count as zero.
+    """
+    def term(name: str) -> np.ndarray:
+        e = energies.get(name)
+        if e is None or len(e) == 0:
+            return np.zeros(len(next(iter(energies.values()), [])))
+        e = np.nan_to_num(np.asarray(e, float))
+        return e - e[0]
+
+    stored = term("kinetic") + term("elastic") + term("contact")
+    work = term("gravity_work") + term("external_work") - term("friction_dissipation")
+    return stored - work
+
+
+def plot_energy(result: Result | PathLike, path: PathLike) -> Path:
+    """Energy terms vs time and the balance residual (what the work does not account for)."""
+    if not isinstance(result, Result):
+        with open_result(result) as r:
+            return plot_energy(r, path)
+    t = result.times
+    e = result.energies()
+    fig = Figure(figsize=(8, 6), layout="constrained")
+    ax, ax_r = fig.subplots(2, 1, sharex=True, height_ratios=(2, 1))
+    for name, label in ENERGY_LABELS.items():
+        values = e.get(name)
+        if values is not None and len(values) and not np.all(np.isnan(values)):
+            ax.plot(t, values, label=label)
+    res = energy_residual(e) if e else np.zeros(len(t))
+    ax_r.plot(t, res, color="black", label="residual")
+    ax_r.axhline(0.0, color="grey", lw=0.5)
+    ax.set_ylabel("energy / work (J)")
+    ax_r.set_ylabel("balance residual (J)")
+    ax_r.set_xlabel("time (s)")
+    ax.set_title(_title(result, "Energy balance"))
+    ax.grid(True, alpha=0.3)
+    ax_r.grid(True, alpha=0.3)
+    if ax.lines:
+        ax.legend(fontsize="small", loc="best")
+    return _save(fig, path)
+
+
+def plot_snapshot(result: Result | PathLike, step: int | None, path: PathLike) -> Path:
+    """3-D view of all blocks at recorded step `step` (None or no steps: initial geometry),
+    faces coloured by the mean displacement magnitude of their vertices."""
+    if not isinstance(result, Result):
+        with open_result(result) as r:
+            return plot_snapshot(r, step, path)
+    x0 = result.initial_vertices()
+    if step is None or result.n_steps == 0:
+        xs, label = x0, "initial geometry"
+    else:
+        k = result.resolve_step(step)
+        xs, label = result.vertices(k), f"t = {result.times[k]:.4g} s (step {result.steps[k]})"
+    polys, values = [], []
+    for b, (x, x_0) in enumerate(zip(xs, x0, strict=True)):
+        d = np.linalg.norm(x - x_0, axis=1)
+        for face in result.faces(b):
+            polys.append(x[face])
+            values.append(float(d[face].mean()))
+    vals = np.asarray(values)
+    vmax = float(vals.max()) if len(vals) and vals.max() > 0 else 1.0
+    norm = Normalize(vmin=0.0, vmax=vmax)
+    mappable = ScalarMappable(norm=norm, cmap="viridis")
+    fig = Figure(figsize=(8, 7), layout="constrained")
+    ax = fig.add_subplot(projection="3d")
+    coll = Poly3DCollection(polys, facecolors=mappable.to_rgba(vals), edgecolors="k",
+                            linewidths=0.3)
+    ax.add_collection3d(coll)
+    pts = np.concatenate(xs) if xs else np.zeros((1, 3))
+    lo, hi = pts.min(axis=0), pts.max(axis=0)
+    span = np.maximum(hi - lo, 1e-9 * max(1.0, float(np.ptp(pts))))
+    ax.set_xlim(lo[0], lo[0] + span[0])
+    ax.set_ylim(lo[1], lo[1] + span[1])
+    ax.set_zlim(lo[2], lo[2] + span[2])
+    ax.set_box_aspect(tuple(span / span.max()))
+    ax.set_xlabel("x (m)")
+    ax.set_ylabel("y (m)")
+    ax.set_zlabel("z (m)")
+    ax.set_title(_title(result, label))
+    fig.colorbar(mappable, ax=ax, shrink=0.6, label="displacement (m)")
+    return _save(fig, path)
+
+
+def plot_all(result_path: PathLike, out_dir: PathLike | None = None) -> list[Path]:
+    """Every plot of a result file as PNGs in `out_dir` (default `<result stem>_plots/`)."""
+    src = Path(result_path)
+    out = Path(out_dir) if out_dir is not None else src.with_name(f"{src.stem}_plots")
+    out.mkdir(parents=True, exist_ok=True)
+    with open_result(src) as r:
+        if r.n_steps == 0:
+            return [plot_snapshot(r, None, out / "snapshot_initial.png")]
+        return [
+            plot_histories(r, out / "histories.png"),
+            plot_energy(r, out / "energy.png"),
+            plot_snapshot(r, None, out / "snapshot_initial.png"),
+            plot_snapshot(r, -1, out / "snapshot_final.png"),
+        ]

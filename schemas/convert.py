@@ -1,0 +1,572 @@
+"""Scene -> engine :class:`~engine.model.Model`: units, joints, cutting, names, selections.
+
+Degrees become radians, dip / dip direction become unit normals, joint sets become planes,
+the domain is cut into blocks, explicit blocks are checked (closed, oriented, not
+overlapping) and every block reference is resolved to an index. Every user mistake is
+reported as a :class:`~schemas.errors.SceneError` naming the field.
+
+Block order in the model: cut blocks first, sorted by centroid z, then y, then x (lowest
+first, named `prefix`1, 2, ...), then explicit blocks in the order given.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from scipy.optimize import linprog
+
+from engine.geometry import (
+    Polyhedron,
+    dip_normal,
+    face_normals_areas,
+    polyhedron_problems,
+    winding_numbers,
+)
+from engine.model import (
+    AnalysisControls,
+    Block,
+    FixedPoint,
+    JointMaterial,
+    JointPlane,
+    Material,
+    Model,
+    PointLoad,
+)
+from engine.tolerances import DEFAULT_TOLERANCES
+from schemas.errors import Problems, SceneError, fmt_point
+from schemas.scene import (
+    BoxSpec,
+    FactorOfSafetySpec,
+    Scene,
+    Selection,
+    load_scene,
+    scene_problems,
+)
+
+#: interiors of two blocks that overlap deeper than this fraction of the model size clash
+OVERLAP_TOLERANCE = 1e-6
+#: a point within this fraction of the model size of a block's surface is on the block
+ON_SURFACE_TOLERANCE = 1e-6
+
+
+@dataclass(frozen=True)
+class FactorOfSafetySettings:
+    """Strength-reduction settings with names resolved to indices (see FactorOfSafetySpec)."""
+
+    tolerance: float
+    min_factor: float
+    max_factor: float
+    observation_time: float
+    averaging_start: float
+    joint_materials: tuple[int, ...]
+    watch_blocks: tuple[int, ...]
+
+
+@dataclass
+class BuildResult:
+    """The engine model and what the scene called things.
+
+    `block_names[k]`, `block_sources[k]` ("cut" or "explicit") describe `model.blocks[k]`;
+    `warnings` are notes that did not stop the build (e.g. from the block cutting).
+    """
+
+    model: Model
+    block_names: list[str]
+    block_sources: list[str]
+    material_names: list[str]
+    joint_material_names: list[str]
+    joint_names: list[str]
+    warnings: list[str] = field(default_factory=list)
+    factor_of_safety: FactorOfSafetySettings | None = None
+
+    def block_index(self, name: str) -> int:
+        """Index of the block called `name` (KeyError if none)."""
+        try:
+            return self.block_names.index(name)
+        except ValueError:
+            raise KeyError(name) from None
+
+
+# --------------------------------------------------------------------------- shapes
+
+
+BOX_FACES = [[0, 3, 2, 1], [4, 5, 6, 7], [0, 1, 5, 4], [1, 2, 6, 5], [2, 3, 7, 6], [3, 0, 4, 7]]
+
+
+def box_vertices(lo: Sequence[float], hi: Sequence[float]) -> np.ndarray:
+    """The 8 corners `(8, 3)` of a box, bottom ring then top ring (counter-clockwise)."""
+    (x0, y0, z0), (x1, y1, z1) = lo, hi
+    return np.array(
+        [[x0, y0, z0], [x1, y0, z0], [x1, y1, z0], [x0, y1, z0],
+         [x0, y0, z1], [x1, y0, z1], [x1, y1, z1], [x0, y1, z1]], dtype=float
+    )
+
+
+def box_polyhedron(box: BoxSpec) -> Polyhedron:
+    """A box as a Polyhedron with 6 quads, counter-clockwise seen from outside."""
+    return Polyhedron.from_faces(box_vertices(box.min, box.max), BOX_FACES)
+
+
+def _geometry_loc(base: str, msg: str) -> str:
+    """`base.vertices` for problems with the vertex list, `base.faces` for the rest."""
+    vertex_problem = msg.startswith(("needs at least 4 vertices", "vertex coordinates"))
+    return f"{base}.vertices" if vertex_problem else f"{base}.faces"
+
+
+# --------------------------------------------------------------------------- joints
+
+
+def _polygon_problem(poly: np.ndarray, normal: np.ndarray, point: np.ndarray) -> str | None:
+    """Why `poly (k, 3)` is not a convex polygon on the plane (normal, point), or None."""
+    size = float(np.ptp(poly, axis=0).max())
+    if size <= 0:
+        return "the polygon has no size"
+    off = np.abs((poly - point) @ normal).max()
+    if off > 1e-4 * size + 1e-9:
+        return (f"the polygon is not on the joint plane: a corner is {off:.3g} m off it "
+                "(the plane goes through 'point' with the given dip and dip direction)")
+    u = np.cross(normal, [1.0, 0.0, 0.0] if abs(normal[0]) < 0.9 else [0.0, 1.0, 0.0])
+    u /= np.linalg.norm(u)
+    v = np.cross(normal, u)
+    q = np.stack([(poly - point) @ u, (poly - point) @ v], axis=1)
+    e = np.roll(q, -1, axis=0) - q
+    cross = e[:, 0] * np.roll(e, -1, axis=0)[:, 1] - e[:, 1] * np.roll(e, -1, axis=0)[:, 0]
+    eps = 1e-9 * size * size
+    if np.any(np.linalg.norm(e, axis=1) <= 1e-9 * size):
+        return "the polygon repeats a corner"
+    if not (np.all(cross >= -eps) or np.all(cross <= eps)) or np.all(np.abs(cross) <= eps):
+        return "the polygon must be convex with its corners in order around it"
+    return None
+
+
+def _joint_planes(scene: Scene, domain: Polyhedron, p: Problems) -> list[JointPlane]:
+    from engine.cutting import disc_polygon, joint_set_planes
+
+    planes: list[JointPlane] = []
+    for k, j in enumerate(scene.joints):
+        loc = f"joints[{k}]" + (f" ('{j.name}')" if j.name else "")
+        normal = dip_normal(j.dip, j.dip_direction)
+        point = np.asarray(j.point, float)
+        extent = None
+        if j.extent is not None and j.extent.polygon is not None:
+            extent = np.asarray(j.extent.polygon, float)
+            problem = _polygon_problem(extent, normal, point)
+            if problem:
+                p.add(f"{loc}.extent.polygon", problem)
+                continue
+            extent = extent - np.outer((extent - point) @ normal, normal)  # onto the plane
+        elif j.extent is not None:
+            disc = j.extent.disc
+            center = point if disc.center is None else np.asarray(disc.center, float)
+            off = abs(float((center - point) @ normal))
+            if off > 1e-4 * disc.radius + 1e-9:
+                p.add(f"{loc}.extent.disc.center",
+                      f"the disc center is {off:.3g} m off the joint plane")
+                continue
+            center = center - ((center - point) @ normal) * normal
+            extent = np.asarray(disc_polygon(center, normal, disc.radius, sides=disc.sides))
+        if j.spacing is not None:
+            planes.extend(joint_set_planes(normal, point, j.spacing, domain, k, extent=extent))
+        else:
+            planes.append(JointPlane(normal=normal, point=point, tag=k, extent=extent))
+    return planes
+
+
+def _cut_domain(scene: Scene, p: Problems, warnings: list[str]) -> list[Polyhedron]:
+    """The blocks cut from the domain, sorted by centroid z, y, x (empty if no domain)."""
+    d = scene.domain
+    if d is None:
+        return []
+    if d.box is not None:
+        domain = box_polyhedron(d.box)
+    else:
+        problems = polyhedron_problems(np.asarray(d.polyhedron.vertices, float),
+                                       d.polyhedron.faces)
+        for msg in problems:
+            p.add(_geometry_loc("domain.polyhedron", msg), msg)
+        if problems:
+            return []
+        domain = Polyhedron.from_faces(d.polyhedron.vertices, d.polyhedron.faces)
+    if not scene.joints:
+        return [domain]
+    planes = _joint_planes(scene, domain, p)
+    if p:
+        return []
+    from engine.cutting import cut_blocks
+
+    result = cut_blocks(domain, planes)
+    for w in result.warnings:
+        if w not in warnings:
+            warnings.append(w)
+    blocks = list(result.blocks)
+    if not blocks:
+        p.add("joints", "cutting the domain left no blocks")
+        return []
+    scale = float(np.ptp(domain.bounds, axis=0).max())
+    grid = DEFAULT_TOLERANCES.length("on_plane", scale) * 1e3
+    c = np.array([b.centroid for b in blocks]) / grid
+    order = np.lexsort((np.round(c[:, 0]), np.round(c[:, 1]), np.round(c[:, 2])))
+    return [blocks[i] for i in order]
+
+
+def _explicit_blocks(scene: Scene, p: Problems) -> list[Polyhedron | None]:
+    out: list[Polyhedron | None] = []
+    for k, b in enumerate(scene.blocks):
+        loc = f"blocks[{k}]" + (f" ('{b.name}')" if b.name else "")
+        problems = polyhedron_problems(np.asarray(b.vertices, float), b.faces)
+        for msg in problems:
+            p.add(_geometry_loc(loc, msg), msg)
+        if problems:
+            out.append(None)
+            continue
+        poly = Polyhedron.from_faces(b.vertices, b.faces)
+        if not poly.is_convex:
+            from engine.cutting import convex_decomposition
+
+            poly = convex_decomposition(poly)
+        out.append(poly)
+    return out
+
+
+# --------------------------------------------------------------------------- overlap
+
+
+def _halfspaces(poly: Polyhedron) -> list[tuple[np.ndarray, np.ndarray]]:
+    """`(normals (m, 3), offsets (m,))` of every convex piece: inside is `n . x <= d`."""
+    out = []
+    for piece in poly.convex_pieces():
+        normals, _ = face_normals_areas(poly.vertices, piece.face_indptr, piece.face_indices)
+        first = poly.vertices[piece.face_indices[piece.face_indptr[:-1]]]
+        out.append((normals, np.einsum("ij,ij->i", normals, first)))
+    return out
+
+
+def overlap_depth(a: Polyhedron, b: Polyhedron) -> float:
+    """Radius (m) of the largest ball inside both blocks (<= 0: they do not overlap).
+
+    Exact for convex pieces (a linear program per pair of pieces).
+    """
+    best = -np.inf
+    for na, da in _halfspaces(a):
+        for nb, db in _halfspaces(b):
+            A = np.vstack([na, nb])
+            rhs = np.concatenate([da, db])
+            res = linprog(
+                c=[0.0, 0.0, 0.0, -1.0],
+                A_ub=np.hstack([A, np.ones((len(A), 1))]),
+                b_ub=rhs,
+                bounds=[(None, None)] * 3 + [(None, float(np.ptp(a.bounds, axis=0).max()))],
+                method="highs",
+            )
+            if res.status == 0:
+                best = max(best, -float(res.fun))
+    return float(best)
+
+
+def _check_overlaps(
+    polys: list[Polyhedron], names: list[str], locs: dict[int, str], fixed: list[bool],
+    scale: float, p: Problems,
+) -> None:
+    """Report every pair of overlapping blocks where one is explicit (in `locs`).
+
+    Two fixed blocks may overlap: they never touch each other in the analysis.
+    """
+    from engine.detection import aabb_pairs
+
+    if len(polys) < 2 or not locs:
+        return
+    tol = OVERLAP_TOLERANCE * scale
+    lo = np.array([q.bounds[0] for q in polys]) + tol
+    hi = np.array([q.bounds[1] for q in polys]) - tol
+    for i, j in aabb_pairs(lo, np.maximum(hi, lo)).tolist():
+        if (i not in locs and j not in locs) or (fixed[i] and fixed[j]):
+            continue  # two cut blocks are disjoint by construction
+        if not np.all((lo[i] < hi[j]) & (lo[j] < hi[i])):
+            continue
+        depth = overlap_depth(polys[i], polys[j])
+        if depth > tol:
+            first, second = (j, i) if j in locs and i not in locs else (i, j)
+            p.add(locs[first], f"blocks '{names[first]}' and '{names[second]}' overlap "
+                  f"(by up to {2 * depth:.3g} m)")
+
+
+# --------------------------------------------------------------------------- selections
+
+
+def _on_surface(poly: Polyhedron, point: np.ndarray, tol: float) -> bool:
+    """True if `point` is within `tol` of a face polygon of `poly`."""
+    dist = poly.face_normals @ point - poly.face_offsets
+    for f in np.flatnonzero(np.abs(dist) <= tol):
+        n = poly.face_normals[f]
+        u = np.cross(n, [1.0, 0.0, 0.0] if abs(n[0]) < 0.9 else [0.0, 1.0, 0.0])
+        u /= np.linalg.norm(u)
+        v = np.cross(n, u)
+        ring = poly.vertices[poly.faces[f]]
+        a = np.stack([ring @ u, ring @ v], axis=1)
+        b = np.roll(a, -1, axis=0)
+        x, y = float(point @ u), float(point @ v)
+        crosses = (a[:, 1] > y) != (b[:, 1] > y)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            xi = a[:, 0] + (y - a[:, 1]) * (b[:, 0] - a[:, 0]) / (b[:, 1] - a[:, 1])
+        if np.count_nonzero(crosses & (x < xi)) % 2 == 1:
+            return True
+        e = b - a
+        t = np.clip(((x - a[:, 0]) * e[:, 0] + (y - a[:, 1]) * e[:, 1])
+                    / np.maximum((e * e).sum(axis=1), 1e-300), 0.0, 1.0)
+        gap = np.hypot(a[:, 0] + t * e[:, 0] - x, a[:, 1] + t * e[:, 1] - y).min()
+        if gap <= tol:
+            return True
+    return False
+
+
+class _Locator:
+    """Finds blocks by name, by a point inside, or by centroid box."""
+
+    def __init__(self, polys: list[Polyhedron], names: list[str], scale: float):
+        self.polys, self.names = polys, names
+        self.index = {n: k for k, n in enumerate(names)}
+        self.tol = ON_SURFACE_TOLERANCE * scale
+        self.lo = np.array([q.bounds[0] for q in polys]) - self.tol
+        self.hi = np.array([q.bounds[1] for q in polys]) + self.tol
+
+    def status(self, k: int, point: np.ndarray) -> str:
+        """Where `point` is for block `k`: "inside", "surface" (within tolerance) or "outside"."""
+        if not np.all((self.lo[k] <= point) & (point <= self.hi[k])):
+            return "outside"
+        q = self.polys[k]
+        if _on_surface(q, point, self.tol):
+            return "surface"
+        w = winding_numbers(point[None], q.vertices, q.face_indptr, q.face_indices)[0]
+        return "inside" if w > 0.5 else "outside"
+
+    def inside(self, point: np.ndarray) -> tuple[list[int], list[int]]:
+        """Blocks the point is strictly inside, and blocks it lies on the surface of."""
+        cand = np.flatnonzero(np.all((self.lo <= point) & (point <= self.hi), axis=1))
+        where = {int(k): self.status(int(k), point) for k in cand}
+        return ([k for k, s in where.items() if s == "inside"],
+                [k for k, s in where.items() if s == "surface"])
+
+    def on_or_in(self, k: int, point: np.ndarray) -> bool:
+        """True if `point` is inside block `k` or within the tolerance of its surface."""
+        return self.status(k, point) != "outside"
+
+    def select(self, sel: Selection, loc: str, p: Problems) -> list[int]:
+        """Block indices chosen by `sel` (problems recorded at `loc`)."""
+        if sel.name is not None:
+            if sel.name not in self.index:
+                known = ", ".join(self.names[:20]) + (", ..." if len(self.names) > 20 else "")
+                p.add(f"{loc}.name", f"unknown block '{sel.name}' (known: {known})")
+                return []
+            return [self.index[sel.name]]
+        if sel.contains is not None:
+            point = np.asarray(sel.contains, float)
+            inside, surface = self.inside(point)
+            if len(inside) == 1:
+                return inside
+            if len(inside) > 1:
+                p.add(f"{loc}.contains", f"point {fmt_point(point)} is inside several blocks: "
+                      + ", ".join(f"'{self.names[k]}'" for k in inside))
+            elif surface:
+                p.add(f"{loc}.contains", f"point {fmt_point(point)} lies on the surface of "
+                      + " and ".join(f"'{self.names[k]}'" for k in surface)
+                      + "; give a point inside the block")
+            else:
+                p.add(f"{loc}.contains", f"point {fmt_point(point)} is inside no block")
+            return []
+        box = sel.centroid_in
+        c = np.array([q.centroid for q in self.polys])
+        hit = np.flatnonzero(np.all((c >= box.min) & (c <= box.max), axis=1))
+        if not len(hit):
+            p.add(f"{loc}.centroid_in", f"no block has its centroid between "
+                  f"{fmt_point(box.min)} and {fmt_point(box.max)}")
+        return [int(k) for k in hit]
+
+    def one(self, sel: Selection | None, point: np.ndarray, loc: str, p: Problems) -> int | None:
+        """The single block `sel` chooses, or the block at `point` if `sel` is None."""
+        if sel is not None:
+            found = self.select(sel, f"{loc}.block", p)
+            if len(found) > 1:
+                p.add(f"{loc}.block", f"selects {len(found)} blocks; choose exactly one")
+                return None
+            if not found:
+                return None
+            k = found[0]
+            if not self.on_or_in(k, point):
+                p.add(f"{loc}.point",
+                      f"point {fmt_point(point)} is not on or inside block '{self.names[k]}'")
+                return None
+            return k
+        inside, surface = self.inside(point)
+        if len(inside) == 1:
+            return inside[0]
+        if not inside and len(surface) == 1:
+            return surface[0]
+        if not inside and not surface:
+            p.add(f"{loc}.point", f"point {fmt_point(point)} is on or inside no block")
+        else:
+            p.add(f"{loc}.point", f"point {fmt_point(point)} touches several blocks ("
+                  + ", ".join(f"'{self.names[k]}'" for k in inside + surface)
+                  + "); name the block with 'block'")
+        return None
+
+
+# --------------------------------------------------------------------------- build
+
+
+def build_model(scene: Scene | str | Path | dict[str, Any]) -> BuildResult:
+    """The engine Model of a scene (or of a path / JSON text / dict, loaded first).
+
+    Raises SceneError listing every problem found.
+    """
+    if not isinstance(scene, Scene):
+        scene = load_scene(scene)
+    else:
+        problems = scene_problems(scene)
+        if problems:
+            raise SceneError(problems)
+    p = Problems()
+    warnings: list[str] = []
+
+    mat_names = list(scene.materials)
+    jmat_names = list(scene.joint_materials)
+    materials = [Material(m.density, m.young_modulus, m.poisson_ratio)
+                 for m in scene.materials.values()]
+    joint_materials = [
+        JointMaterial(float(np.radians(j.friction_angle)), j.cohesion, j.tensile_strength)
+        for j in scene.joint_materials.values()
+    ]
+
+    def mat_index(name: str | None) -> int:
+        return mat_names.index(name or scene.default_material)
+
+    # geometry
+    cut = _cut_domain(scene, p, warnings)
+    explicit = _explicit_blocks(scene, p)
+    p.raise_if_any()
+    prefix = scene.domain.name_prefix if scene.domain is not None else "B"
+    names = [f"{prefix}{k + 1}" for k in range(len(cut))]
+    cut_names = set(names)
+    locs: dict[int, str] = {}
+    for k in range(len(scene.blocks)):
+        name = scene.block_name(k)
+        loc = f"blocks[{k}]" + (f" ('{scene.blocks[k].name}')" if scene.blocks[k].name else "")
+        locs[len(names)] = loc
+        if name in cut_names:
+            p.add(f"{loc}.name", f"'{name}' is also the name of a block cut from the domain "
+                  f"(cut blocks are named {prefix}1 to {prefix}{len(cut)}); choose another name")
+        names.append(name)
+    polys: list[Polyhedron] = cut + [q for q in explicit if q is not None]
+    lo = np.min([q.bounds[0] for q in polys], axis=0)
+    hi = np.max([q.bounds[1] for q in polys], axis=0)
+    scale = float(np.max(hi - lo))
+    p.raise_if_any()
+
+    blocks = [Block(polyhedron=q, name=names[k], material=mat_index(scene.domain.material))
+              for k, q in enumerate(cut)]
+    for k, (b, q) in enumerate(zip(scene.blocks, explicit, strict=True)):
+        velocity = np.array(list(b.velocity.translation) + list(b.velocity.spin), float)
+        blocks.append(Block(polyhedron=q, name=names[len(cut) + k], material=mat_index(b.material),
+                            fixed=b.fixed, velocity=velocity))
+
+    # selections
+    find = _Locator(polys, names, scale)
+    for k, sel in enumerate(scene.boundary.fixed_blocks):
+        for i in find.select(sel, f"boundary.fixed_blocks[{k}]", p):
+            blocks[i].fixed = True
+    fixed_points = []
+    for k, fp in enumerate(scene.boundary.fixed_points):
+        point = np.asarray(fp.point, float)
+        i = find.one(fp.block, point, f"boundary.fixed_points[{k}]", p)
+        if i is not None:
+            fixed_points.append(FixedPoint(block=i, point=point))
+    loads = []
+    for k, pl in enumerate(scene.boundary.point_loads):
+        point = np.asarray(pl.point, float)
+        i = find.one(pl.block, point, f"boundary.point_loads[{k}]", p)
+        if i is not None:
+            loads.append(PointLoad(block=i, point=point, force=np.asarray(pl.force, float)))
+    pairs: dict[tuple[int, int], int] = {}
+    for k, pair in enumerate(scene.block_pairs):
+        found = []
+        for s, sel in enumerate(pair.blocks):
+            got = find.select(sel, f"block_pairs[{k}].blocks[{s}]", p)
+            if len(got) > 1:
+                p.add(f"block_pairs[{k}].blocks[{s}]",
+                      f"selects {len(got)} blocks; choose exactly one")
+            found.append(got[0] if len(got) == 1 else None)
+        if None in found:
+            continue
+        a, b = found
+        if a == b:
+            p.add(f"block_pairs[{k}].blocks", f"both entries are block '{names[a]}'")
+            continue
+        pairs[(min(a, b), max(a, b))] = jmat_names.index(pair.joint_material)
+
+    _check_overlaps(polys, names, locs, [b.fixed for b in blocks], scale, p)
+
+    fos = None
+    spec = scene.analysis.factor_of_safety
+    if spec is None and scene.analysis.type == "factor_of_safety":
+        spec = FactorOfSafetySpec()
+    if spec is not None:
+        watch: list[int] = []
+        for k, sel in enumerate(spec.watch):
+            watch.extend(find.select(sel, f"analysis.factor_of_safety.watch[{k}]", p))
+        if not watch:
+            watch = [k for k, b in enumerate(blocks) if not b.fixed]
+        weak = (range(len(jmat_names)) if spec.joint_materials is None
+                else [jmat_names.index(n) for n in spec.joint_materials])
+        fos = FactorOfSafetySettings(
+            spec.tolerance, spec.min_factor, spec.max_factor, spec.observation_time,
+            spec.averaging_start, tuple(sorted(set(weak))), tuple(sorted(set(watch))),
+        )
+    p.raise_if_any()
+
+    if all(b.fixed for b in blocks):
+        warnings.append("every block is fixed: nothing can move")
+
+    a = scene.analysis
+    controls = AnalysisControls(
+        duration=a.duration,
+        time_step=a.time_step,
+        penalty=a.penalty,
+        shear_penalty_ratio=a.shear_penalty_ratio,
+        record_interval=a.record_interval,
+        dynamic_ratio=a.dynamic_ratio_value,
+        block_model=a.block_model,
+        max_displacement_ratio=a.max_displacement_ratio,
+        max_open_close_iterations=a.max_open_close_iterations,
+        min_time_step=a.min_time_step,
+        fixed_point_penalty=a.fixed_point_penalty,
+        record_contacts=a.record_contacts,
+    )
+    default_jm = jmat_names.index(scene.default_joint_material)
+    model = Model(
+        blocks=blocks,
+        materials=materials,
+        joint_materials=joint_materials,
+        default_joint_material=default_jm,
+        joint_material_of_tag={
+            k: jmat_names.index(j.joint_material) if j.joint_material else default_jm
+            for k, j in enumerate(scene.joints)
+        },
+        pair_joint_material=pairs,
+        gravity=np.asarray(scene.gravity, float),
+        point_loads=loads,
+        fixed_points=fixed_points,
+        controls=controls,
+    )
+    return BuildResult(
+        model=model,
+        block_names=names,
+        block_sources=["cut"] * len(cut) + ["explicit"] * len(scene.blocks),
+        material_names=mat_names,
+        joint_material_names=jmat_names,
+        joint_names=[scene.joint_name(k) for k in range(len(scene.joints))],
+        warnings=warnings,
+        factor_of_safety=fos,
+    )

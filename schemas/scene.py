@@ -1,0 +1,581 @@
+"""The scene a rock engineer writes: pydantic models, defaults, loading and reference checks.
+
+SI units (m, kg, s, N, Pa), angles in degrees, x = East, y = North, z = Up. Unknown fields
+are errors (typos are caught). :func:`load_scene` returns a validated :class:`Scene` or
+raises :class:`~schemas.errors.SceneError` listing every problem with its field path;
+:func:`schemas.convert.build_model` turns the scene into the engine's ``Model``.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+from typing import Annotated, Any, Literal
+
+from pydantic import (
+    AfterValidator,
+    BaseModel,
+    BeforeValidator,
+    ConfigDict,
+    Field,
+    ValidationError,
+    model_validator,
+)
+
+from schemas.errors import Problems, SceneError, fmt_num, format_loc, from_validation_error
+
+#: version of the scene format; a scene may state it as ``"schema_version"``
+SCHEMA_VERSION = "1.0"
+
+
+class Limits:
+    """Size limits checked before any heavy work (cutting, detection, running)."""
+
+    #: vertices in all explicit blocks, the domain polyhedron and joint polygons
+    max_vertices = 200_000
+    #: explicit blocks
+    max_blocks = 20_000
+    #: joint planes after expanding joint sets over the domain
+    max_joint_planes = 2_000
+    #: time steps: duration / time_step
+    max_steps = 10_000_000
+
+
+# --------------------------------------------------------------------------- field types
+
+
+def _between(lo: float, hi: float, unit: str, *, hi_open: bool = False) -> Any:
+    """A float in [lo, hi] (or [lo, hi)) with a message naming both bounds and the unit."""
+    suffix = f" {unit}" if unit else ""
+
+    def check(v: float) -> float:
+        if not (lo <= v < hi if hi_open else lo <= v <= hi):
+            if hi_open and v == hi:
+                raise ValueError(f"must be less than {fmt_num(hi)}{suffix}, got {fmt_num(v)}")
+            raise ValueError(
+                f"must be between {fmt_num(lo)} and {fmt_num(hi)}{suffix}, got {fmt_num(v)}"
+            )
+        return v
+
+    bound = {"exclusiveMaximum": hi} if hi_open else {"maximum": hi}
+    schema = Field(json_schema_extra={"minimum": lo, **bound})
+    return Annotated[float, schema, AfterValidator(check)]
+
+
+Positive = Annotated[float, Field(gt=0)]
+NonNegative = Annotated[float, Field(ge=0)]
+Vec3 = Annotated[list[float], Field(min_length=3, max_length=3)]
+FrictionAngle = _between(0, 90, "degrees", hi_open=True)
+Dip = _between(0, 90, "degrees")
+DipDirection = _between(-360, 360, "degrees")
+PoissonRatio = _between(0, 0.5, "", hi_open=True)
+Ratio01 = _between(0, 1, "")
+Name = Annotated[str, Field(min_length=1, max_length=100)]
+
+
+def _name_to_selection(value: Any) -> Any:
+    """A bare string where a block is expected means ``{"name": value}``."""
+    return {"name": value} if isinstance(value, str) else value
+
+
+class _Model(BaseModel):
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
+
+
+def _exactly_one(obj: BaseModel, names: tuple[str, ...]) -> None:
+    given = [n for n in names if getattr(obj, n) is not None]
+    if len(given) != 1:
+        quoted = [f"'{n}'" for n in names]
+        options = ", ".join(quoted[:-1]) + " or " + quoted[-1]
+        got = "none" if not given else " and ".join(f"'{n}'" for n in given)
+        raise ValueError(f"give exactly one of {options} (got {got})")
+
+
+# --------------------------------------------------------------------------- materials
+
+
+class MaterialSpec(_Model):
+    """Intact rock of the blocks."""
+
+    density: Positive = Field(2600.0, description="kg/m³")
+    young_modulus: Positive = Field(10e9, description="Pa (unused for rigid blocks)")
+    poisson_ratio: PoissonRatio = Field(0.25, description="0 to 0.5 (unused for rigid blocks)")
+
+
+class JointMaterialSpec(_Model):
+    """Strength of a joint (and of any contact given this joint material)."""
+
+    friction_angle: FrictionAngle = Field(30.0, description="degrees, 0 to 90")
+    cohesion: NonNegative = Field(0.0, description="Pa")
+    tensile_strength: NonNegative = Field(0.0, description="Pa")
+
+
+# --------------------------------------------------------------------------- geometry
+
+
+class BoxSpec(_Model):
+    """An axis-aligned box from `min` to `max` (m)."""
+
+    min: Vec3
+    max: Vec3
+
+    @model_validator(mode="after")
+    def _ordered(self) -> BoxSpec:
+        for axis, lo, hi in zip("xyz", self.min, self.max, strict=True):
+            if hi <= lo:
+                raise ValueError(
+                    f"max must exceed min on every axis ({axis}: min {fmt_num(lo)}, "
+                    f"max {fmt_num(hi)})"
+                )
+        return self
+
+
+class PolyhedronSpec(_Model):
+    """A closed polyhedron: vertices and faces (vertex indices, counter-clockwise from outside)."""
+
+    vertices: list[Vec3]
+    faces: list[list[Annotated[int, Field(ge=0)]]]
+
+
+class DomainSpec(_Model):
+    """The rock mass that the joints cut into blocks: a `box` or a `polyhedron`.
+
+    Cut blocks are named `name_prefix` + 1, 2, ... in order of centroid z, then y, then x
+    (lowest first).
+    """
+
+    box: BoxSpec | None = None
+    polyhedron: PolyhedronSpec | None = None
+    material: Name | None = Field(None, description="material name (default material if omitted)")
+    name_prefix: Name = "B"
+
+    @model_validator(mode="after")
+    def _one_shape(self) -> DomainSpec:
+        _exactly_one(self, ("box", "polyhedron"))
+        return self
+
+
+class DiscSpec(_Model):
+    """A circular joint of `radius` (m) about `center` (default: the joint's point)."""
+
+    radius: Positive
+    center: Vec3 | None = None
+    sides: Annotated[int, Field(ge=3, le=256)] = Field(
+        24, description="polygon sides used for the disc"
+    )
+
+
+class ExtentSpec(_Model):
+    """Where a non-persistent joint exists: a convex `polygon` in its plane or a `disc`."""
+
+    polygon: Annotated[list[Vec3], Field(min_length=3)] | None = None
+    disc: DiscSpec | None = None
+
+    @model_validator(mode="after")
+    def _one_shape(self) -> ExtentSpec:
+        _exactly_one(self, ("polygon", "disc"))
+        return self
+
+
+class JointSpec(_Model):
+    """A joint plane, or a joint set when `spacing` is given (parallel planes `spacing` apart).
+
+    Without `extent` the joint is persistent: it cuts everything it crosses.
+    """
+
+    name: Name | None = Field(None, description="default J1, J2, ... by position")
+    dip: Dip = Field(description="degrees, 0 to 90")
+    dip_direction: DipDirection = Field(description="degrees clockwise from North")
+    point: Vec3 = Field(description="a point on the plane (m)")
+    spacing: Positive | None = Field(None, description="m; makes this a joint set")
+    extent: ExtentSpec | None = None
+    joint_material: Name | None = Field(None, description="default joint material if omitted")
+
+
+class VelocitySpec(_Model):
+    """Initial velocity: translation (m/s) and spin (rad/s) about the centroid."""
+
+    translation: Vec3 = Field(default_factory=lambda: [0.0, 0.0, 0.0])
+    spin: Vec3 = Field(default_factory=lambda: [0.0, 0.0, 0.0])
+
+
+class BlockSpec(_Model):
+    """An explicit block: vertices (m) and faces listed counter-clockwise seen from outside.
+
+    Concave blocks are allowed (decomposed into convex pieces for contact detection).
+    """
+
+    name: Name | None = Field(None, description="default block1, block2, ... by position")
+    vertices: list[Vec3]
+    faces: list[list[Annotated[int, Field(ge=0)]]]
+    material: Name | None = None
+    fixed: bool = False
+    velocity: VelocitySpec = Field(default_factory=VelocitySpec)
+
+
+# --------------------------------------------------------------------------- selections
+
+
+class Selection(_Model):
+    """Chooses blocks: by `name`, by a point it `contains`, or all blocks whose centroid is
+    in the box `centroid_in`. A bare string means a name."""
+
+    name: Name | None = None
+    contains: Vec3 | None = None
+    centroid_in: BoxSpec | None = None
+
+    @model_validator(mode="after")
+    def _one_rule(self) -> Selection:
+        _exactly_one(self, ("name", "contains", "centroid_in"))
+        return self
+
+
+Target = Annotated[
+    Selection, BeforeValidator(_name_to_selection, json_schema_input_type=Name | Selection)
+]
+
+
+class BlockPairSpec(_Model):
+    """The joint material of every contact between two given blocks (wins over joint tags)."""
+
+    blocks: Annotated[list[Target], Field(min_length=2, max_length=2)]
+    joint_material: Name
+
+
+class FixedPointSpec(_Model):
+    """A point of a block held in place by a stiff spring (block default: the one at `point`)."""
+
+    point: Vec3
+    block: Target | None = None
+
+
+class PointLoadSpec(_Model):
+    """A force (N) at a point of a block (block default: the one at `point`)."""
+
+    point: Vec3
+    force: Vec3
+    block: Target | None = None
+
+
+class BoundarySpec(_Model):
+    """Fixed blocks, fixed points and point loads."""
+
+    fixed_blocks: list[Target] = Field(default_factory=list)
+    fixed_points: list[FixedPointSpec] = Field(default_factory=list)
+    point_loads: list[PointLoadSpec] = Field(default_factory=list)
+
+
+# --------------------------------------------------------------------------- analysis
+
+
+class FactorOfSafetySpec(_Model):
+    """Strength reduction: bisect on F with tan φ_r = tan φ / F (cohesion and tension / F).
+
+    A trial fails when the mean acceleration of the watched blocks over
+    [`averaging_start`, `observation_time`] s points along their motion (VALIDATION.md 2.3).
+    """
+
+    tolerance: Positive = Field(0.01, description="stop when the F bracket is this narrow")
+    min_factor: Positive = 0.5
+    max_factor: Positive = 5.0
+    observation_time: Positive = Field(3.0, description="s simulated per trial")
+    averaging_start: NonNegative = Field(1.0, description="s; start of the averaging window")
+    joint_materials: list[Name] | None = Field(
+        None, description="joint materials to weaken (default: all)"
+    )
+    watch: list[Target] = Field(
+        default_factory=list, description="blocks whose motion decides (default: all free)"
+    )
+
+    @model_validator(mode="after")
+    def _consistent(self) -> FactorOfSafetySpec:
+        if self.max_factor <= self.min_factor:
+            raise ValueError(
+                f"max_factor ({fmt_num(self.max_factor)}) must exceed min_factor "
+                f"({fmt_num(self.min_factor)})"
+            )
+        if self.averaging_start >= self.observation_time:
+            raise ValueError(
+                f"averaging_start ({fmt_num(self.averaging_start)} s) must be before "
+                f"observation_time ({fmt_num(self.observation_time)} s)"
+            )
+        return self
+
+
+class AnalysisSpec(_Model):
+    """How to run: time, contact penalties, integration mode, block model."""
+
+    type: Literal["simulation", "factor_of_safety"] = "simulation"
+    duration: Positive = Field(1.0, description="s simulated")
+    time_step: Positive = Field(1e-3, description="s, initial time step")
+    min_time_step: Positive = Field(1e-7, description="s; the run stops below this")
+    penalty: Positive = Field(1e10, description="N/m, normal stiffness of one contact spring")
+    shear_penalty_ratio: Positive = Field(1.0, description="shear / normal spring stiffness")
+    fixed_point_penalty: Positive | None = Field(None, description="N/m (default: engine's)")
+    record_interval: Annotated[int, Field(ge=1)] = Field(10, description="steps between records")
+    mode: Literal["dynamic", "quasi_static"] = Field(
+        "dynamic", description="dynamic keeps velocity between steps; quasi_static drops it"
+    )
+    dynamic_ratio: Ratio01 | None = Field(
+        None, description="velocity kept between steps, 0 to 1 (overrides mode)"
+    )
+    block_model: Literal["rigid", "elastic"] = "rigid"
+    max_displacement_ratio: Annotated[float, Field(gt=0, le=1)] = Field(
+        0.01, description="largest displacement in a step / model size"
+    )
+    max_open_close_iterations: Annotated[int, Field(ge=1, le=1000)] = 8
+    record_contacts: bool = True
+    factor_of_safety: FactorOfSafetySpec | None = None
+
+    @model_validator(mode="after")
+    def _times(self) -> AnalysisSpec:
+        if self.time_step > self.duration:
+            raise ValueError(
+                f"time_step ({fmt_num(self.time_step)} s) must not exceed duration "
+                f"({fmt_num(self.duration)} s)"
+            )
+        if self.min_time_step > self.time_step:
+            raise ValueError(
+                f"min_time_step ({fmt_num(self.min_time_step)} s) must not exceed time_step "
+                f"({fmt_num(self.time_step)} s)"
+            )
+        return self
+
+    @property
+    def dynamic_ratio_value(self) -> float:
+        """k01: `dynamic_ratio` if given, else 1 for dynamic and 0 for quasi-static."""
+        if self.dynamic_ratio is not None:
+            return float(self.dynamic_ratio)
+        return 1.0 if self.mode == "dynamic" else 0.0
+
+
+# --------------------------------------------------------------------------- scene
+
+DEFAULT_MATERIAL_NAME = "rock"
+DEFAULT_JOINT_MATERIAL_NAME = "joint"
+
+
+class Scene(_Model):
+    """A DDA scene: materials, blocks (cut from a domain by joints, and/or explicit),
+    boundary conditions, gravity and the analysis to run."""
+
+    schema_version: str = Field(SCHEMA_VERSION, description="scene format version")
+    name: str = "scene"
+    description: str = ""
+    materials: dict[Name, MaterialSpec] = Field(
+        default_factory=dict,
+        description="by name; none given: one granite-like 'rock' (2600 kg/m³, 10 GPa, 0.25)",
+    )
+    default_material: Name | None = Field(
+        None, description="material of blocks that name none (the only one if just one)"
+    )
+    joint_materials: dict[Name, JointMaterialSpec] = Field(
+        default_factory=dict,
+        description="by name; none given: one 'joint' (friction 30°, no cohesion or tension)",
+    )
+    default_joint_material: Name | None = Field(
+        None, description="for contacts on no named joint (the only one if just one)"
+    )
+    domain: DomainSpec | None = None
+    joints: list[JointSpec] = Field(default_factory=list)
+    blocks: list[BlockSpec] = Field(default_factory=list)
+    block_pairs: list[BlockPairSpec] = Field(default_factory=list)
+    boundary: BoundarySpec = Field(default_factory=BoundarySpec)
+    gravity: Vec3 = Field(default_factory=lambda: [0.0, 0.0, -9.81], description="m/s²")
+    analysis: AnalysisSpec = Field(default_factory=AnalysisSpec)
+
+    @model_validator(mode="after")
+    def _defaults(self) -> Scene:
+        if not self.materials:
+            self.materials = {DEFAULT_MATERIAL_NAME: MaterialSpec()}
+        if not self.joint_materials:
+            self.joint_materials = {DEFAULT_JOINT_MATERIAL_NAME: JointMaterialSpec()}
+        if self.default_material is None and len(self.materials) == 1:
+            self.default_material = next(iter(self.materials))
+        if self.default_joint_material is None and len(self.joint_materials) == 1:
+            self.default_joint_material = next(iter(self.joint_materials))
+        return self
+
+    def joint_name(self, k: int) -> str:
+        """Name of joint `k` (its own or J<k+1>)."""
+        return self.joints[k].name or f"J{k + 1}"
+
+    def block_name(self, k: int) -> str:
+        """Name of explicit block `k` (its own or block<k+1>)."""
+        return self.blocks[k].name or f"block{k + 1}"
+
+
+# --------------------------------------------------------------------------- checks
+
+
+def _known(names: Any) -> str:
+    return ", ".join(names) if names else "none"
+
+
+def _count_vertices(scene: Scene) -> int:
+    n = sum(len(b.vertices) for b in scene.blocks)
+    if scene.domain is not None and scene.domain.polyhedron is not None:
+        n += len(scene.domain.polyhedron.vertices)
+    for j in scene.joints:
+        if j.extent is not None:
+            n += len(j.extent.polygon) if j.extent.polygon else j.extent.disc.sides
+    return n
+
+
+def _domain_diagonal(scene: Scene) -> float | None:
+    d = scene.domain
+    if d is None:
+        return None
+    if d.box is not None:
+        lo, hi = d.box.min, d.box.max
+    elif d.polyhedron.vertices:
+        lo = [min(v[i] for v in d.polyhedron.vertices) for i in range(3)]
+        hi = [max(v[i] for v in d.polyhedron.vertices) for i in range(3)]
+    else:
+        return None
+    return math.dist(lo, hi)
+
+
+def scene_problems(scene: Scene) -> list[dict[str, str]]:
+    """Reference and size problems of a validated scene (names, defaults, limits)."""
+    p = Problems()
+    mats, jmats = list(scene.materials), list(scene.joint_materials)
+    major = scene.schema_version.split(".")[0]
+    if major != SCHEMA_VERSION.split(".")[0]:
+        p.add("schema_version", f"unsupported version '{scene.schema_version}' "
+              f"(this PolyDDA reads {SCHEMA_VERSION})")
+
+    if scene.default_material is not None and scene.default_material not in mats:
+        p.add("default_material",
+              f"unknown material '{scene.default_material}' (known: {_known(mats)})")
+    if scene.default_joint_material is None:
+        p.add("default_joint_material",
+              f"is required when several joint materials are defined (known: {_known(jmats)})")
+    elif scene.default_joint_material not in jmats:
+        p.add("default_joint_material",
+              f"unknown joint material '{scene.default_joint_material}' (known: {_known(jmats)})")
+
+    def material(loc: str, name: str | None) -> None:
+        if name is None:
+            if scene.default_material is None:
+                p.add(loc, "is required when several materials are defined and no "
+                      f"default_material is set (known: {_known(mats)})")
+        elif name not in mats:
+            p.add(loc, f"unknown material '{name}' (known: {_known(mats)})")
+
+    def joint_material(loc: str, name: str | None) -> None:
+        if name is not None and name not in jmats:
+            p.add(loc, f"unknown joint material '{name}' (known: {_known(jmats)})")
+
+    if scene.domain is not None:
+        material("domain.material", scene.domain.material)
+    elif scene.joints:
+        p.add("joints", "joints cut a domain: give 'domain' (a box or a polyhedron)")
+    if scene.domain is None and not scene.blocks:
+        p.add("", "the scene has no blocks: give a 'domain' (cut by 'joints') or 'blocks'")
+
+    seen: dict[str, int] = {}
+    for k, j in enumerate(scene.joints):
+        loc = format_loc(("joints", k), {"joints": _raw_names(scene.joints)})
+        joint_material(f"{loc}.joint_material", j.joint_material)
+        name = scene.joint_name(k)
+        if name in seen:
+            p.add(f"{loc}.name", f"joint name '{name}' is used twice (also joints[{seen[name]}])")
+        seen.setdefault(name, k)
+
+    seen = {}
+    for k, b in enumerate(scene.blocks):
+        loc = format_loc(("blocks", k), {"blocks": _raw_names(scene.blocks)})
+        material(f"{loc}.material", b.material)
+        name = scene.block_name(k)
+        if name in seen:
+            p.add(f"{loc}.name", f"block name '{name}' is used twice (also blocks[{seen[name]}])")
+        seen.setdefault(name, k)
+
+    for k, pair in enumerate(scene.block_pairs):
+        joint_material(f"block_pairs[{k}].joint_material", pair.joint_material)
+    fos = scene.analysis.factor_of_safety
+    if fos is not None and fos.joint_materials is not None:
+        for k, name in enumerate(fos.joint_materials):
+            joint_material(f"analysis.factor_of_safety.joint_materials[{k}]", name)
+
+    # sizes, before any heavy work
+    nv = _count_vertices(scene)
+    if nv > Limits.max_vertices:
+        p.add("", f"the scene has {nv:,} vertices in all; the limit is {Limits.max_vertices:,}")
+    if len(scene.blocks) > Limits.max_blocks:
+        p.add("blocks", f"{len(scene.blocks):,} blocks; the limit is {Limits.max_blocks:,}")
+    diag = _domain_diagonal(scene)
+    if diag is not None:
+        planes = sum(diag / j.spacing + 1 if j.spacing else 1 for j in scene.joints)
+        if planes > Limits.max_joint_planes:
+            p.add("joints", f"the joint sets make about {planes:,.0f} planes across the domain; "
+                  f"the limit is {Limits.max_joint_planes:,} (increase the spacings)")
+    a = scene.analysis
+    steps = a.duration / a.time_step
+    if steps > Limits.max_steps:
+        p.add("analysis.time_step",
+              f"duration / time_step = {steps:.3g} steps; the limit is {Limits.max_steps:,} "
+              "(shorten the duration or enlarge the time step)")
+    return p.items
+
+
+def _raw_names(items: list[Any]) -> list[dict[str, Any]]:
+    return [{"name": it.name} if it.name else {} for it in items]
+
+
+# --------------------------------------------------------------------------- loading
+
+
+def _parse(source: str | Path | dict[str, Any]) -> Any:
+    if isinstance(source, dict):
+        return source
+    if isinstance(source, Path) or not source.lstrip().startswith(("{", "[")):
+        path = Path(source)
+        try:
+            text = path.read_text(encoding="utf-8")
+        except FileNotFoundError:
+            raise SceneError([{"loc": "", "msg": f"{path}: file not found"}]) from None
+        except (OSError, UnicodeDecodeError) as exc:
+            raise SceneError([{"loc": "", "msg": f"{path}: cannot read ({exc})"}]) from None
+    else:
+        text = source
+    try:
+        return json.loads(text)
+    except json.JSONDecodeError as exc:
+        raise SceneError(
+            [{"loc": "", "msg": f"not valid JSON: {exc.msg} at line {exc.lineno} "
+              f"column {exc.colno}"}]
+        ) from None
+    except RecursionError:
+        raise SceneError([{"loc": "", "msg": "not valid JSON: nested too deeply"}]) from None
+
+
+def load_scene(source: str | Path | dict[str, Any]) -> Scene:
+    """Parse and validate a scene from a path, JSON text or a dict; raise SceneError if bad.
+
+    A string that starts with ``{`` is JSON text; any other string is a file path.
+    """
+    data = _parse(source)
+    if not isinstance(data, dict):
+        raise SceneError([{"loc": "", "msg": "a scene must be a JSON object {...}"}])
+    try:
+        scene = Scene.model_validate(data)
+    except ValidationError as exc:
+        raise from_validation_error(exc, data, Scene) from None
+    problems = scene_problems(scene)
+    if problems:
+        raise SceneError(problems)
+    return scene
+
+
+def scene_json_schema() -> dict[str, Any]:
+    """JSON Schema (draft 2020-12) of the scene format."""
+    schema = Scene.model_json_schema()
+    return {
+        "$schema": "https://json-schema.org/draft/2020-12/schema",
+        **schema,
+        "title": "PolyDDA scene",
+        "x-schema-version": SCHEMA_VERSION,
+    }

@@ -1,0 +1,444 @@
+"""`polydda` command line: inspect scenes (blocks, contacts), print the JSON Schema.
+
+Each subcommand is one `cmd_*` function taking the parsed arguments and returning an exit
+code; add a command by writing one and registering it in :func:`build_parser`.
+Exit codes: 0 success, 3 a run that did not complete (its status and reason on stderr),
+2 bad scene or bad arguments (problems on stderr, one per line),
+1 an output file could not be written.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import sys
+import time
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from engine.analyses import StrengthReductionControls, TrialRun, factor_of_safety
+from engine.geometry import Polyhedron
+from engine.results import ResultWriter
+from engine.simulation import STATUS_COMPLETED, Progress, run
+from schemas.convert import BuildResult, build_model
+from schemas.errors import SceneError
+from schemas.scene import SCHEMA_VERSION, scene_json_schema
+
+EXIT_OK, EXIT_IO, EXIT_SCENE, EXIT_RUN = 0, 1, 2, 3
+
+#: default contact search distance for `polydda contacts`, as a fraction of the model size
+SEARCH_DISTANCE_RATIO = 1e-3
+
+
+# --------------------------------------------------------------------------- helpers
+
+
+def _print_json(doc: Any) -> None:
+    json.dump(doc, sys.stdout, indent=2, allow_nan=False)
+    sys.stdout.write("\n")
+
+
+def _scene_failed(exc: SceneError) -> int:
+    for line in exc.lines():
+        print(line, file=sys.stderr)
+    return EXIT_SCENE
+
+
+def _load(path: str) -> BuildResult:
+    """Build the scene at `path` (SceneError on any problem); warnings go to stderr."""
+    result = build_model(Path(path))
+    for w in result.warnings:
+        print(f"warning: {w}", file=sys.stderr)
+    return result
+
+
+def surface(poly: Polyhedron) -> tuple[np.ndarray, list[list[int]]]:
+    """The surface vertices `(k, 3)` and faces re-indexed to them (seam points dropped)."""
+    used = poly.surface_vertex_ids
+    remap = np.full(len(poly.vertices), -1, dtype=np.int64)
+    remap[used] = np.arange(len(used))
+    return poly.vertices[used], [remap[f].tolist() for f in poly.faces]
+
+
+def _r(x: np.ndarray | float, digits: int = 9) -> Any:
+    """Rounded plain-Python numbers for JSON (no -0.0)."""
+    return (np.round(np.asarray(x, float), digits) + 0.0).tolist()
+
+
+# --------------------------------------------------------------------------- export
+
+
+def write_obj(path: Path, result: BuildResult) -> None:
+    """Wavefront OBJ: one object per block (named), polygon faces."""
+    lines = [f"# PolyDDA blocks, scene format {SCHEMA_VERSION}"]
+    base = 1
+    for name, block in zip(result.block_names, result.model.blocks, strict=True):
+        verts, faces = surface(block.polyhedron)
+        lines.append(f"o {name}")
+        lines.extend(f"v {x:.9g} {y:.9g} {z:.9g}" for x, y, z in verts)
+        lines.extend("f " + " ".join(str(base + i) for i in f) for f in faces)
+        base += len(verts)
+    path.write_text("\n".join(lines) + "\n", encoding="utf-8")
+
+
+def write_vtk(path: Path, result: BuildResult) -> None:
+    """Legacy VTK polydata (ASCII): polygon faces with cell data `block` and `fixed`."""
+    points, polys, block_of, fixed = [], [], [], []
+    base = 0
+    for k, block in enumerate(result.model.blocks):
+        verts, faces = surface(block.polyhedron)
+        points.append(verts)
+        for f in faces:
+            polys.append(f"{len(f)} " + " ".join(str(base + i) for i in f))
+            block_of.append(k)
+            fixed.append(int(block.fixed))
+        base += len(verts)
+    pts = np.vstack(points) if points else np.zeros((0, 3))
+    size = sum(len(p.split()) for p in polys)
+    lines = [
+        "# vtk DataFile Version 3.0",
+        f"PolyDDA blocks: {', '.join(result.block_names)[:200]}",
+        "ASCII",
+        "DATASET POLYDATA",
+        f"POINTS {len(pts)} double",
+        *(f"{x:.9g} {y:.9g} {z:.9g}" for x, y, z in pts),
+        f"POLYGONS {len(polys)} {size}",
+        *polys,
+        f"CELL_DATA {len(polys)}",
+        "SCALARS block int 1",
+        "LOOKUP_TABLE default",
+        *map(str, block_of),
+        "SCALARS fixed int 1",
+        "LOOKUP_TABLE default",
+        *map(str, fixed),
+    ]
+    path.write_text("\n".join(lines) + "\n", encoding="utf-8")
+
+
+EXPORTERS = {".obj": write_obj, ".vtk": write_vtk}
+
+
+# --------------------------------------------------------------------------- commands
+
+
+def cmd_blocks(args: argparse.Namespace) -> int:
+    """List the blocks of a scene (name, volume, concave, fixed) and the total volume."""
+    if args.export is not None and Path(args.export).suffix.lower() not in EXPORTERS:
+        print(f"--export: unknown file type '{Path(args.export).suffix}' "
+              f"(use {' or '.join(EXPORTERS)})", file=sys.stderr)
+        return EXIT_SCENE
+    try:
+        result = _load(args.scene)
+    except SceneError as exc:
+        return _scene_failed(exc)
+    blocks = result.model.blocks
+    if args.export is not None:
+        out = Path(args.export)
+        try:
+            EXPORTERS[out.suffix.lower()](out, result)
+        except OSError as exc:
+            print(f"--export: cannot write {out}: {exc.strerror or exc}", file=sys.stderr)
+            return EXIT_IO
+    if args.json:
+        docs = []
+        for name, b in zip(result.block_names, blocks, strict=True):
+            verts, faces = surface(b.polyhedron)
+            docs.append({
+                "name": name,
+                "volume": float(b.polyhedron.volume),
+                "centroid": _r(b.polyhedron.centroid),
+                "concave": not b.polyhedron.is_convex,
+                "fixed": bool(b.fixed),
+                "vertices": _r(verts),
+                "faces": faces,
+            })
+        _print_json({"blocks": docs})
+        return EXIT_OK
+    width = max([len(n) for n in result.block_names] + [5])
+    print(f"{len(blocks)} block{'s' if len(blocks) != 1 else ''}")
+    print(f"{'name':<{width}}  {'volume (m3)':>14}  {'shape':<7}  fixed")
+    for name, b in zip(result.block_names, blocks, strict=True):
+        shape = "convex" if b.polyhedron.is_convex else "concave"
+        print(f"{name:<{width}}  {b.polyhedron.volume:>14.6g}  {shape:<7}  "
+              f"{'yes' if b.fixed else 'no'}")
+    total = sum(b.polyhedron.volume for b in blocks)
+    print(f"total volume: {total:.6g} m3")
+    if args.export is not None:
+        print(f"written: {args.export}")
+    return EXIT_OK
+
+
+def cmd_contacts(args: argparse.Namespace) -> int:
+    """The contact constraints of the scene as given (before any step)."""
+    from engine.contacts import KIND_NAMES, MODE_NAMES
+    from engine.detection import detect_contacts
+
+    try:
+        result = _load(args.scene)
+    except SceneError as exc:
+        return _scene_failed(exc)
+    model = result.model
+    if args.search_distance is not None and not args.search_distance > 0:
+        print("--search-distance: must be positive", file=sys.stderr)
+        return EXIT_SCENE
+    search = (args.search_distance if args.search_distance is not None
+              else SEARCH_DISTANCE_RATIO * model.scale)
+    active = np.array([not b.fixed for b in model.blocks], dtype=bool)
+    cs = detect_contacts([b.polyhedron for b in model.blocks], search, active=active)
+    names = result.block_names
+    rows = []
+    for k in range(len(cs)):
+        tag = int(cs.face_tag[k])
+        rows.append({
+            "block_i": names[int(cs.block_i[k])],
+            "block_j": names[int(cs.block_j[k])],
+            "type": KIND_NAMES[int(cs.kind[k])],
+            "point_i": _r(cs.point_i[k]),
+            "point_j": _r(cs.point_j[k]),
+            "normal": _r(cs.normal[k]),
+            "tangent": _r(cs.tangent[k]),
+            "mode": MODE_NAMES[int(cs.mode[k])],
+            "penetration": float(max(0.0, -cs.gap[k])),
+            "gap": float(cs.gap[k]),
+            "joint": result.joint_names[tag] if 0 <= tag < len(result.joint_names) else None,
+        })
+    if args.json:
+        _print_json({"search_distance": search, "count": len(rows), "contacts": rows})
+        return EXIT_OK
+    print(f"{len(rows)} contact constraint{'s' if len(rows) != 1 else ''} "
+          f"(search distance {search:.3g} m)")
+    for k, c in enumerate(rows, 1):
+        pt = ", ".join(f"{x:.3f}" for x in c["point_i"])
+        nm = ", ".join(f"{x:.3f}" for x in c["normal"])
+        print(f"{k:>4}  {c['block_i']} / {c['block_j']}  {c['type']:<13} ({pt})  "
+              f"n=({nm})  {c['mode']:<7} gap={c['gap']:.3g} m")
+    return EXIT_OK
+
+
+def cmd_schema(args: argparse.Namespace) -> int:
+    """Print the JSON Schema of the scene format."""
+    _print_json(scene_json_schema())
+    return EXIT_OK
+
+
+def cmd_validate(args: argparse.Namespace) -> int:
+    """Check a scene completely (including cutting and overlaps); print `ok` or the problems."""
+    try:
+        result = _load(args.scene)
+    except SceneError as exc:
+        return _scene_failed(exc)
+    n = len(result.model.blocks)
+    print(f"ok: {n} block{'s' if n != 1 else ''}, "
+          f"{sum(b.fixed for b in result.model.blocks)} fixed")
+    return EXIT_OK
+
+
+# --------------------------------------------------------------------------- run, fos, plot
+
+
+class _ProgressPrinter:
+    """Prints run progress to stderr: in place on a terminal, else every 10 %."""
+
+    def __init__(self, label: str) -> None:
+        self.label = label
+        self.tty = sys.stderr.isatty()
+        self.last_wall = 0.0
+        self.last_decile = -1
+
+    def __call__(self, p: Progress) -> None:
+        now = time.monotonic()
+        decile = int(10 * p.fraction)
+        if self.tty and now - self.last_wall < 0.2 and p.fraction < 1:
+            return
+        if not self.tty and decile == self.last_decile:
+            return
+        self.last_wall, self.last_decile = now, decile
+        line = (f"{self.label}: step {p.step}  t = {p.time:.4g} / {p.duration:g} s  "
+                f"({100 * p.fraction:.0f} %)  dt = {p.dt:.3g} s")
+        print(("\r" + line) if self.tty else line, end="" if self.tty else "\n",
+              file=sys.stderr, flush=True)
+
+
+def _named_summary(summary: dict[str, Any], names: list[str]) -> dict[str, Any]:
+    """The run summary with the scene's block names."""
+    for b, name in zip(summary.get("blocks", []), names, strict=False):
+        b["name"] = name
+    return summary
+
+
+def cmd_run(args: argparse.Namespace) -> int:
+    """Run the scene's simulation; write the HDF5 result and optionally a JSON summary."""
+    try:
+        built = _load(args.scene)
+    except SceneError as exc:
+        return _scene_failed(exc)
+    scene_text = Path(args.scene).read_text(encoding="utf-8")
+    out = Path(args.out)
+    try:
+        out.parent.mkdir(parents=True, exist_ok=True)
+        writer = ResultWriter(out, overwrite=True, schema_version=SCHEMA_VERSION,
+                              record_contacts=built.model.controls.record_contacts)
+    except OSError as exc:
+        print(f"cannot write {out}: {exc}", file=sys.stderr)
+        return EXIT_IO
+    printer = None if args.quiet else _ProgressPrinter(Path(args.scene).stem)
+    res = run(built.model, recorder=writer, progress=printer, scene_json=scene_text)
+    if printer is not None and printer.tty:
+        print(file=sys.stderr)
+    summary = _named_summary(res.summary, built.block_names)
+    if args.summary:
+        try:
+            _write_json_atomic(Path(args.summary), summary)
+        except OSError as exc:
+            print(f"cannot write {args.summary}: {exc}", file=sys.stderr)
+            return EXIT_IO
+    print(f"{res.status}: {res.steps} steps, {res.state.time:.6g} s simulated in "
+          f"{res.wall_time:.3g} s; max penetration {res.max_penetration:.3g} m; "
+          f"result {out}", file=sys.stderr)
+    if res.message:
+        print(res.message, file=sys.stderr)
+    return EXIT_OK if res.status == STATUS_COMPLETED else EXIT_RUN
+
+
+def _write_json_atomic(path: Path, doc: Any) -> None:
+    """Write JSON to `path` via a temporary file and a rename (never half-written)."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(path.name + ".tmp")
+    tmp.write_text(json.dumps(doc, indent=2, allow_nan=False) + "\n", encoding="utf-8")
+    os.replace(tmp, path)
+
+
+def fos_controls(built: BuildResult) -> StrengthReductionControls:
+    """Strength-reduction controls from the scene's `analysis.factor_of_safety`."""
+    s = built.factor_of_safety
+    if s is None:
+        return StrengthReductionControls()
+    return StrengthReductionControls(
+        observation_time=s.observation_time, window_start=s.averaging_start,
+        tolerance=s.tolerance, factor_min=s.min_factor, factor_max=s.max_factor,
+        joint_materials=tuple(s.joint_materials) or None,
+        watch_blocks=tuple(s.watch_blocks) or None,
+    )
+
+
+def cmd_fos(args: argparse.Namespace) -> int:
+    """Factor of safety by strength reduction (bisection on tan φ / F)."""
+    try:
+        built = _load(args.scene)
+    except SceneError as exc:
+        return _scene_failed(exc)
+
+    def note(r: TrialRun) -> None:
+        if not args.quiet:
+            verdict = "fails" if r.failed else "holds"
+            print(f"F = {r.factor:.4f}: {verdict} (mean acceleration "
+                  f"{r.mean_acceleration:.3g} m/s²)", file=sys.stderr, flush=True)
+
+    result = factor_of_safety(built.model, fos_controls(built), progress=note)
+    doc = result.as_dict()
+    if args.json:
+        _print_json(doc)
+    else:
+        print(f"factor of safety {result.factor_of_safety:.4f} "
+              f"(critical friction angle {doc['critical_friction_angle']}) "
+              f"from {len(result.runs)} runs")
+        if result.message:
+            print(result.message)
+    return EXIT_OK if result.status == STATUS_COMPLETED else EXIT_RUN
+
+
+def cmd_plot(args: argparse.Namespace) -> int:
+    """PNG plots of a result file: histories, energy balance, snapshots."""
+    from engine.plots import plot_all  # matplotlib only when plotting
+
+    try:
+        paths = plot_all(args.result, args.out)
+    except (OSError, KeyError, ValueError) as exc:
+        print(f"cannot plot {args.result}: {exc}", file=sys.stderr)
+        return EXIT_IO
+    for p in paths:
+        print(p)
+    return EXIT_OK
+
+
+# --------------------------------------------------------------------------- parser
+
+
+class _Parser(argparse.ArgumentParser):
+    """ArgumentParser whose usage errors print one line and exit with code 2."""
+
+    def error(self, message: str) -> None:  # type: ignore[override]
+        self.print_usage(sys.stderr)
+        print(f"{self.prog}: {message}", file=sys.stderr)
+        raise SystemExit(EXIT_SCENE)
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """The argparse parser with one subparser per command (`func` set to its cmd_*)."""
+    parser = _Parser(prog="polydda",
+                     description="3-D Discontinuous Deformation Analysis of rock blocks")
+    sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND",
+                                parser_class=_Parser)
+
+    p = sub.add_parser("blocks", help="list the blocks of a scene (after cutting)")
+    p.add_argument("scene", help="scene JSON file")
+    p.add_argument("--json", action="store_true", help="print one JSON document")
+    p.add_argument("--export", metavar="FILE", help="write the blocks to FILE (.obj or .vtk)")
+    p.set_defaults(func=cmd_blocks)
+
+    p = sub.add_parser("contacts", help="list the contact constraints of a scene as given")
+    p.add_argument("scene", help="scene JSON file")
+    p.add_argument("--json", action="store_true", help="print one JSON document")
+    p.add_argument("--search-distance", type=float, metavar="M",
+                   help=f"contact search distance in m (default {SEARCH_DISTANCE_RATIO:g} x "
+                        "model size)")
+    p.set_defaults(func=cmd_contacts)
+
+    p = sub.add_parser("validate", help="check a scene and report every problem")
+    p.add_argument("scene", help="scene JSON file")
+    p.set_defaults(func=cmd_validate)
+
+    p = sub.add_parser("run", help="run the simulation of a scene")
+    p.add_argument("scene", help="scene JSON file")
+    p.add_argument("--out", required=True, metavar="RESULT.h5", help="HDF5 result file")
+    p.add_argument("--summary", metavar="SUMMARY.json", help="also write a JSON summary")
+    p.add_argument("--quiet", action="store_true", help="no progress output")
+    p.set_defaults(func=cmd_run)
+
+    p = sub.add_parser("fos", help="factor of safety by strength reduction")
+    p.add_argument("scene", help="scene JSON file")
+    p.add_argument("--json", action="store_true", help="print one JSON document")
+    p.add_argument("--quiet", action="store_true", help="no progress output")
+    p.set_defaults(func=cmd_fos)
+
+    p = sub.add_parser("plot", help="PNG plots of a result file")
+    p.add_argument("result", help="HDF5 result file")
+    p.add_argument("--out", metavar="DIR", help="output folder (default: beside the result)")
+    p.set_defaults(func=cmd_plot)
+
+    p = sub.add_parser("schema", help="print the JSON Schema of the scene format")
+    p.set_defaults(func=cmd_schema)
+    return parser
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Entry point of `polydda`; returns the exit code."""
+    parser = build_parser()
+    try:
+        args = parser.parse_args(argv)
+    except SystemExit as exc:  # --help or a usage error
+        return int(exc.code or 0)
+    try:
+        return int(args.func(args))
+    except BrokenPipeError:  # output piped into a reader that closed early (`| head`)
+        devnull = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(devnull, sys.stdout.fileno())
+        return EXIT_OK
+
+
+if __name__ == "__main__":
+    sys.exit(main())

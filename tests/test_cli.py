@@ -1,0 +1,153 @@
+"""`polydda` CLI, run in-process: blocks, contacts, schema, validate, exit codes."""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Callable
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from engine.geometry import dip_normal
+from service.cli import main
+
+EXAMPLES = Path(__file__).resolve().parent.parent / "examples"
+WEDGE = str(EXAMPLES / "wedge.json")
+
+
+def run(capsys: pytest.CaptureFixture[str], *argv: str) -> tuple[int, str, str]:
+    code = main(list(argv))
+    out, err = capsys.readouterr()
+    return code, out, err
+
+
+def write_scene(tmp_path: Path, scene: dict | str) -> str:
+    path = tmp_path / "scene.json"
+    path.write_text(scene if isinstance(scene, str) else json.dumps(scene))
+    return str(path)
+
+
+def test_blocks_text(capsys: pytest.CaptureFixture[str]) -> None:
+    code, out, err = run(capsys, "blocks", WEDGE)
+    assert code == 0 and err == ""
+    lines = out.splitlines()
+    assert lines[0] == "2 blocks"
+    assert lines[2].split() == ["B1", "2770.23", "concave", "yes"]
+    assert lines[3].split() == ["B2", "29.7708", "convex", "no"]
+    assert lines[-1] == "total volume: 2800 m3"
+
+
+def test_blocks_json(capsys: pytest.CaptureFixture[str]) -> None:
+    code, out, _ = run(capsys, "blocks", WEDGE, "--json")
+    assert code == 0
+    doc = json.loads(out)
+    assert list(doc) == ["blocks"]
+    blocks = doc["blocks"]
+    assert [b["name"] for b in blocks] == ["B1", "B2"]
+    for b in blocks:
+        assert set(b) == {"name", "volume", "centroid", "concave", "fixed", "vertices", "faces"}
+        assert all(0 <= i < len(b["vertices"]) for f in b["faces"] for i in f)
+    wedge = blocks[1]
+    assert wedge["volume"] == pytest.approx(29.7708, abs=1e-4)
+    assert (wedge["concave"], wedge["fixed"]) == (False, False)
+    assert (blocks[0]["concave"], blocks[0]["fixed"]) == (True, True)
+    assert len(wedge["vertices"]) == 4 and len(wedge["faces"]) == 4
+    assert sum(b["volume"] for b in blocks) == pytest.approx(2800.0, rel=1e-12)
+
+
+def test_bad_scene_exits_2_with_one_problem_per_line(
+    capsys: pytest.CaptureFixture[str], tmp_path: Path, box_block: Callable
+) -> None:
+    block = box_block("wedge", [0, 0, 0], [1, 1, 1])
+    del block["faces"][0]
+    scene = {"materials": {"rock": {"density": -5}}, "blocks": [block]}
+    code, out, err = run(capsys, "blocks", write_scene(tmp_path, scene))
+    assert code == 2 and out == ""
+    assert err.splitlines() == ["materials.rock.density: must be positive, got -5"]
+    scene["materials"]["rock"]["density"] = 2600
+    code, out, err = run(capsys, "blocks", write_scene(tmp_path, scene), "--json")
+    assert code == 2 and out == ""
+    lines = err.splitlines()
+    assert lines and all(ln.startswith("blocks[0] ('wedge').faces: faces are not closed")
+                         for ln in lines)
+    assert "Traceback" not in err
+
+
+def test_malformed_json_and_missing_file(capsys: pytest.CaptureFixture[str],
+                                         tmp_path: Path) -> None:
+    code, _, err = run(capsys, "blocks", write_scene(tmp_path, '{"blocks": [1,]}'))
+    assert code == 2 and err.startswith("not valid JSON: ") and "line 1 column" in err
+    code, _, err = run(capsys, "validate", str(tmp_path / "missing.json"))
+    assert code == 2 and err.strip().endswith("missing.json: file not found")
+
+
+def test_export_obj_and_vtk(capsys: pytest.CaptureFixture[str], tmp_path: Path) -> None:
+    obj = tmp_path / "wedge.obj"
+    code, out, _ = run(capsys, "blocks", WEDGE, "--export", str(obj))
+    assert code == 0 and f"written: {obj}" in out
+    text = obj.read_text().splitlines()
+    assert [ln for ln in text if ln.startswith("o ")] == ["o B1", "o B2"]
+    nv = sum(ln.startswith("v ") for ln in text)
+    faces = [[int(i) for i in ln.split()[1:]] for ln in text if ln.startswith("f ")]
+    assert min(min(f) for f in faces) == 1 and max(max(f) for f in faces) == nv
+    vtk = tmp_path / "wedge.vtk"
+    assert run(capsys, "blocks", WEDGE, "--export", str(vtk))[0] == 0
+    lines = vtk.read_text().splitlines()
+    assert lines[0] == "# vtk DataFile Version 3.0" and lines[3] == "DATASET POLYDATA"
+    npts = int(lines[4].split()[1])
+    assert npts == nv
+    polys = next(ln for ln in lines if ln.startswith("POLYGONS")).split()
+    assert int(polys[1]) == len(faces)
+    code, _, err = run(capsys, "blocks", WEDGE, "--export", str(tmp_path / "wedge.stl"))
+    assert code == 2 and "unknown file type '.stl'" in err
+
+
+def test_contacts_of_the_wedge(capsys: pytest.CaptureFixture[str]) -> None:
+    code, out, _ = run(capsys, "contacts", WEDGE, "--json")
+    assert code == 0
+    doc = json.loads(out)
+    assert doc["search_distance"] == pytest.approx(1e-3 * 20.0)
+    rows = doc["contacts"]
+    assert doc["count"] == len(rows) == 6  # paper Table 4: six constraints, four positions
+    keys = {"block_i", "block_j", "type", "point_i", "point_j", "normal", "tangent", "mode",
+            "penetration", "gap", "joint"}
+    n1, n2 = dip_normal(50, 110), dip_normal(55, 240)
+    for c in rows:
+        assert set(c) == keys
+        assert {c["block_i"], c["block_j"]} == {"B1", "B2"}
+        assert c["penetration"] == max(0.0, -c["gap"]) and abs(c["gap"]) < 1e-6
+        n = np.array(c["normal"])
+        assert min(np.linalg.norm(np.cross(n, n1)), np.linalg.norm(np.cross(n, n2))) < 1e-6
+    points = {tuple(np.round(c["point_i"], 2)) for c in rows}
+    assert points == {(0.0, 3.0, 10.0), (-2.55, -4.0, 10.0), (0.91, -4.0, 6.13),
+                      (4.04, -4.0, 10.0)}
+
+
+def test_contacts_text_and_search_distance(capsys: pytest.CaptureFixture[str]) -> None:
+    stack = str(EXAMPLES / "stack.json")
+    code, out, _ = run(capsys, "contacts", stack, "--search-distance", "0.01")
+    assert code == 0 and "search distance 0.01 m" in out.splitlines()[0]
+    code, out, _ = run(capsys, "contacts", stack, "--json")
+    pairs = {frozenset((c["block_i"], c["block_j"])) for c in json.loads(out)["contacts"]}
+    assert pairs == {frozenset(p) for p in [("top", "middle"), ("middle", "bottom"),
+                                           ("bottom", "base")]}
+    code, _, err = run(capsys, "contacts", stack, "--search-distance", "-1")
+    assert code == 2 and "--search-distance: must be positive" in err
+
+
+def test_schema_and_validate(capsys: pytest.CaptureFixture[str]) -> None:
+    code, out, _ = run(capsys, "schema")
+    assert code == 0
+    schema = json.loads(out)
+    assert schema["title"] == "PolyDDA scene" and "blocks" in schema["properties"]
+    code, out, _ = run(capsys, "validate", str(EXAMPLES / "toppling.json"))
+    assert code == 0 and out.strip() == "ok: 7 blocks, 1 fixed"
+
+
+def test_usage_errors(capsys: pytest.CaptureFixture[str]) -> None:
+    assert run(capsys, "--help")[0] == 0
+    code, _, err = run(capsys)
+    assert code == 2 and "usage: polydda" in err
+    code, _, err = run(capsys, "blocks")
+    assert code == 2 and "scene" in err

@@ -1,0 +1,549 @@
+"""Contact detection: broad phase, the four basic contact types, concave blocks, invariances."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+from scipy.spatial import ConvexHull
+from scipy.spatial.transform import Rotation
+
+from engine.contacts import (
+    EDGE_EDGE,
+    LOCKED,
+    OPEN,
+    VERTEX_EDGE,
+    VERTEX_FACE,
+    VERTEX_VERTEX,
+    ContactSet,
+)
+from engine.detection import aabb_pairs, decode_feature, detect_contacts, feature_code
+from engine.geometry import (
+    ConvexPiece,
+    Polyhedron,
+    dip_normal,
+    face_normals_areas,
+    faces_to_csr,
+)
+
+# --------------------------------------------------------------------------- shape helpers
+
+BOX_FACES = [[0, 3, 2, 1], [4, 5, 6, 7], [0, 1, 5, 4], [1, 2, 6, 5], [2, 3, 7, 6], [3, 0, 4, 7]]
+
+
+def box_vertices(lo, hi) -> np.ndarray:
+    (x0, y0, z0), (x1, y1, z1) = lo, hi
+    return np.array([(x0, y0, z0), (x1, y0, z0), (x1, y1, z0), (x0, y1, z0),
+                     (x0, y0, z1), (x1, y0, z1), (x1, y1, z1), (x0, y1, z1)], float)
+
+
+def box(lo, hi, tags=None) -> Polyhedron:
+    """Axis-aligned box; faces -z, +z, -y, +x, +y, -x."""
+    return Polyhedron.from_faces(box_vertices(lo, hi), BOX_FACES, tags)
+
+
+def hull_faces(points: np.ndarray, ids) -> list[list[int]]:
+    """Faces (merged coplanar, counter-clockwise from outside) of the convex hull of
+    `points[ids]`, as indices into `points`."""
+    ids = np.asarray(ids)
+    pts = points[ids]
+    hull = ConvexHull(pts)
+    scale = max(1.0, float(np.abs(pts).max()))
+    planes: list[np.ndarray] = []
+    for eq in hull.equations:
+        if not any(np.abs(eq - q).max() < 1e-7 for q in planes):
+            planes.append(eq)
+    faces = []
+    for eq in planes:
+        n, d = eq[:3], eq[3]
+        on = np.flatnonzero(np.abs(pts @ n + d) < 1e-9 * scale)
+        c = pts[on].mean(axis=0)
+        u = pts[on[0]] - c
+        u /= np.linalg.norm(u)
+        w = np.cross(n, u)
+        ang = np.arctan2((pts[on] - c) @ w, (pts[on] - c) @ u)
+        faces.append([int(ids[k]) for k in on[np.argsort(ang)]])
+    return faces
+
+
+def convex_block(points) -> Polyhedron:
+    pts = np.asarray(points, float)
+    used = np.unique(ConvexHull(pts).vertices)
+    pts = pts[used]
+    return Polyhedron.from_faces(pts, hull_faces(pts, np.arange(len(pts))))
+
+
+def concave_block(vertices, faces, tags, piece_ids) -> Polyhedron:
+    """A block with surface `faces` and convex pieces = hulls of the vertex id sets.
+
+    Piece faces on a block face plane map to that face; the others are fictitious.
+    """
+    v = np.asarray(vertices, float)
+    plain = Polyhedron.from_faces(v, faces, tags)
+    pieces = []
+    for ids in piece_ids:
+        pf = hull_faces(v, ids)
+        surf = []
+        normals, _ = face_normals_areas(v, *faces_to_csr(pf))
+        for f, n in zip(pf, normals, strict=True):
+            hit = np.flatnonzero((plain.face_normals @ n > 1 - 1e-9)
+                                 & (np.abs(plain.face_offsets - n @ v[f[0]]) < 1e-9))
+            surf.append(int(hit[0]) if len(hit) else -1)
+        indptr, indices = faces_to_csr(pf)
+        pieces.append(ConvexPiece(indptr, indices, np.asarray(surf)))
+    return Polyhedron.from_faces(v, faces, tags, tuple(pieces))
+
+
+def oriented(v: np.ndarray, polys: list[list[int]]) -> list[list[int]]:
+    """Polygons of a convex piece, each reversed if needed to face away from its centre."""
+    centre = v[sorted({k for p in polys for k in p})].mean(axis=0)
+    normals, _ = face_normals_areas(v, *faces_to_csr(polys))
+    return [p if n @ (v[p].mean(axis=0) - centre) > 0 else p[::-1]
+            for p, n in zip(polys, normals, strict=True)]
+
+
+def l_block(tags=None) -> Polyhedron:
+    """L-shaped block in x-z: floor [0,3]x[0,2]x[0,1] plus wall [0,1]x[0,2]x[1,3];
+    the concave edge runs along y at x = 1, z = 1. Pieces: floor and wall."""
+    v = np.array([(0, 0, 0), (3, 0, 0), (3, 0, 1), (1, 0, 1), (1, 0, 3), (0, 0, 3),
+                  (0, 2, 0), (3, 2, 0), (3, 2, 1), (1, 2, 1), (1, 2, 3), (0, 2, 3),
+                  (0, 0, 1), (0, 2, 1)], float)  # 12, 13: seam points
+    faces = [[0, 1, 2, 3, 4, 5], [6, 11, 10, 9, 8, 7], [0, 6, 7, 1], [1, 7, 8, 2],
+             [2, 8, 9, 3], [3, 9, 10, 4], [4, 10, 11, 5], [5, 11, 6, 0]]
+    floor = [([0, 1, 2, 3, 12], 0), ([6, 13, 9, 8, 7], 1), ([0, 6, 7, 1], 2),
+             ([1, 7, 8, 2], 3), ([2, 8, 9, 3], 4), ([3, 9, 13, 12], -1), ([0, 12, 13, 6], 7)]
+    wall = [([12, 3, 4, 5], 0), ([13, 11, 10, 9], 1), ([3, 9, 10, 4], 5), ([4, 10, 11, 5], 6),
+            ([5, 11, 13, 12], 7), ([12, 13, 9, 3], -1)]
+    pieces = []
+    for spec in (floor, wall):
+        polys = oriented(v, [p for p, _ in spec])
+        indptr, indices = faces_to_csr(polys)
+        pieces.append(ConvexPiece(indptr, indices, np.array([t for _, t in spec])))
+    return Polyhedron.from_faces(v, faces, tags, tuple(pieces))
+
+
+def wedge_model() -> tuple[Polyhedron, Polyhedron]:
+    """Paper example 6.1: concave base (block 0, two pieces) and the wedge (block 1)."""
+    o, a = (0.0, 3.0, 10.0), (-2.547792, -4.0, 10.0)
+    b, c = (4.041452, -4.0, 10.0), (0.910297, -4.0, 6.127349)
+    v = [(-10, -4, 0), (10, -4, 0), (10, 10, 0), (-10, 10, 0), (-10, -4, 10), (10, -4, 10),
+         (10, 10, 10), (-10, 10, 10), o, a, b, c,
+         (0.910297, -4, 0), (-0.910297, 10, 0), (-0.910297, 10, 10)]  # seam points 12-14
+    faces = [[0, 3, 2, 1], [0, 4, 7, 3], [1, 2, 6, 5], [3, 7, 6, 2],
+             [4, 9, 8, 10, 5, 6, 7], [0, 1, 5, 10, 11, 9, 4], [9, 11, 8], [8, 11, 10]]
+    tags = [-1, -1, -1, -1, -1, -1, 1, 2]
+    left = [0, 12, 13, 3, 4, 9, 11, 8, 14, 7]
+    right = [12, 1, 2, 13, 11, 10, 5, 6, 14, 8]
+    base = concave_block(v, faces, tags, [left, right])
+    wedge = Polyhedron.from_faces([o, a, b, c], [[0, 1, 2], [0, 3, 1], [0, 2, 3], [1, 3, 2]],
+                                  [-1, 1, 2, -1])
+    return base, wedge
+
+
+def transformed(block: Polyhedron, rot: np.ndarray, shift: np.ndarray) -> Polyhedron:
+    return block.moved(block.vertices @ rot.T + shift)
+
+
+def as_rows(c: ContactSet) -> list[tuple]:
+    """Order-independent description of a contact set (rounded)."""
+    return sorted(
+        (int(c.block_i[k]), int(c.block_j[k]), int(c.kind[k]),
+         *np.round(c.point_i[k], 6), *np.round(c.point_j[k], 6),
+         *np.round(c.normal[k], 6), round(float(c.gap[k]), 6))
+        for k in range(len(c))
+    )
+
+
+def check_invariants(c: ContactSet) -> None:
+    """Consistency every contact set must satisfy."""
+    assert np.all(c.block_i > c.block_j)
+    assert np.allclose(np.linalg.norm(c.normal, axis=1), 1.0)
+    assert np.allclose(np.linalg.norm(c.tangent, axis=1), 1.0)
+    assert np.allclose(np.einsum("ij,ij->i", c.normal, c.tangent), 0.0, atol=1e-12)
+    assert np.allclose(c.gap, np.einsum("ij,ij->i", c.point_i - c.point_j, c.normal))
+    assert np.array_equal(c.mode, np.where(c.gap < 0, LOCKED, OPEN))
+    assert len(np.unique(c.key, axis=0)) == len(c)
+    assert c.cand_indptr[-1] == len(c.cand_normals)
+    pure = np.diff(c.cand_indptr) > 0
+    assert np.all(np.isin(c.kind[pure], [VERTEX_EDGE, VERTEX_VERTEX]))
+
+
+# --------------------------------------------------------------------------- feature codes
+
+
+def test_feature_code_round_trip():
+    code = feature_code([0, 3, 7], [0, 1, 2], [5, 0, 123456])
+    piece, kind, index = decode_feature(code)
+    assert piece.tolist() == [0, 3, 7]
+    assert kind.tolist() == [0, 1, 2]
+    assert index.tolist() == [5, 0, 123456]
+
+
+# --------------------------------------------------------------------------- broad phase
+
+
+@settings(max_examples=30, deadline=None, database=None)
+@given(st.integers(0, 2**31 - 1), st.integers(2, 120))
+def test_aabb_pairs_match_brute_force(seed, n):
+    rng = np.random.default_rng(seed)
+    lo = rng.uniform(0, 10, (n, 3))
+    hi = lo + rng.uniform(0, 1.5, (n, 3)) * rng.choice([0.2, 1.0, 6.0], (n, 1))
+    got = aabb_pairs(lo, hi)
+    ov = np.all(lo[:, None] <= hi[None], axis=2) & np.all(lo[None] <= hi[:, None], axis=2)
+    a, b = np.nonzero(np.triu(ov, 1))
+    assert got.tolist() == sorted(map(list, zip(a.tolist(), b.tolist(), strict=True)))
+
+
+def test_aabb_pairs_touching_and_degenerate():
+    lo = np.array([[0, 0, 0], [1, 0, 0], [2.5, 0, 0], [0, 0, 0]], float)
+    hi = np.array([[1, 1, 1], [2, 1, 1], [3, 1, 1], [0, 0, 0]], float)
+    assert aabb_pairs(lo, hi).tolist() == [[0, 1], [0, 3]]
+    assert aabb_pairs(lo[:1], hi[:1]).shape == (0, 2)
+
+
+def test_far_apart_blocks_have_no_contacts():
+    blocks = [box((0, 0, 0), (1, 1, 1)), box((1.2, 0, 0), (2, 1, 1))]
+    assert len(detect_contacts(blocks, 0.19)) == 0
+    assert len(detect_contacts(blocks, 0.21)) > 0
+
+
+def test_fixed_pairs_are_skipped():
+    blocks = [box((0, 0, -1), (3, 3, 0)), box((3, 0, -1), (6, 3, 0)), box((1, 1, 0), (2, 2, 1))]
+    c = detect_contacts(blocks, 0.01, active=np.array([False, False, True]))
+    assert set(zip(c.block_i.tolist(), c.block_j.tolist(), strict=True)) == {(2, 0)}
+    c_all = detect_contacts(blocks, 0.01)
+    assert (1, 0) in set(zip(c_all.block_i.tolist(), c_all.block_j.tolist(), strict=True))
+
+
+# --------------------------------------------------------------------------- basic types
+
+
+def test_cube_on_slab_face_to_face():
+    slab = box((-2, -2, -1), (2, 2, 0), tags=[0, 7, 0, 0, 0, 0])
+    cube = box((0, 0, 0), (1, 1, 1))
+    c = detect_contacts([slab, cube], 0.01)
+    check_invariants(c)
+    assert len(c) == 4
+    assert np.all(c.kind == VERTEX_FACE)
+    assert np.all(c.block_i == 1) and np.all(c.block_j == 0)
+    assert np.allclose(c.normal, [0, 0, 1])
+    assert np.allclose(c.gap, 0.0)
+    assert np.all(c.face_tag == 7)
+    assert sorted(map(tuple, c.point_i[:, :2].tolist())) == [(0, 0), (0, 1), (1, 0), (1, 1)]
+    assert np.allclose(c.point_i, c.point_j)
+    # swapped order: the same constraints, mirrored
+    m = detect_contacts([cube, slab], 0.01)
+    assert np.allclose(m.normal, [0, 0, -1]) and len(m) == 4
+    assert np.all(m.face_tag == 7)
+
+
+def test_penetration_and_gap_signs():
+    slab = box((-2, -2, -1), (2, 2, 0))
+    for dz, mode in ((-0.004, LOCKED), (0.004, OPEN)):
+        c = detect_contacts([slab, box((0, 0, dz), (1, 1, 1 + dz))], 0.01)
+        assert len(c) == 4
+        assert np.allclose(c.gap, dz) and np.all(c.mode == mode)
+    assert len(detect_contacts([slab, box((0, 0, 0.011), (1, 1, 1.011))], 0.01)) == 0
+
+
+def test_cube_overhanging_slab_edge():
+    """Cube half over the slab edge: two v-f on the slab, two e-e where the slab's top
+    edge crosses the cube's bottom edges, nothing against the slab's side face."""
+    slab = box((-2, -2, -1), (0, 2, 0))
+    cube = box((-0.5, 0, -0.001), (0.5, 1, 0.999))
+    c = detect_contacts([slab, cube], 0.01)
+    check_invariants(c)
+    assert np.allclose(c.normal, [0, 0, 1])
+    assert np.allclose(c.gap, -0.001)
+    kinds = sorted(c.kind.tolist())
+    assert kinds == [VERTEX_FACE, VERTEX_FACE, EDGE_EDGE, EDGE_EDGE]
+    ee = c.kind == EDGE_EDGE
+    assert sorted(c.point_j[ee].round(9).tolist()) == [[0, 0, 0], [0, 1, 0]]
+    assert np.allclose(c.point_i[ee][:, 2], -0.001)
+
+
+def test_crossing_edges():
+    """Two bars crossing at right angles, edge on edge: one e-e constraint."""
+    low = box((-1, -0.5, -1), (1, 0.5, 0))
+    rot = Rotation.from_rotvec([np.pi / 4, 0, 0]).as_matrix()  # edge down, along x
+    bar = box((-1, -0.5, -0.5), (1, 0.5, 0.5))
+    bar = transformed(bar, rot, np.zeros(3))
+    bar = bar.moved(bar.vertices @ Rotation.from_rotvec([0, 0, np.pi / 2]).as_matrix().T)
+    lift = np.sqrt(0.5) + 0.002
+    upper = bar.moved(bar.vertices + [0.1, 0.2, lift])
+    # the lower bar's top edges run along x at y = -0.5 and 0.5; the upper bar's bottom
+    # edge runs along y at x = 0.1 and crosses both
+    c = detect_contacts([low, upper], 0.01)
+    check_invariants(c)
+    assert np.all(c.kind == EDGE_EDGE) and len(c) == 2
+    assert np.allclose(c.gap, 0.002)
+    assert np.allclose(np.abs(c.normal @ [0, 0, 1]), 1.0)
+    assert np.allclose(c.normal, [0, 0, 1])
+    assert sorted(c.point_j.round(9).tolist()) == [[0.1, -0.5, 0.0], [0.1, 0.5, 0.0]]
+    assert np.allclose(c.point_i - c.point_j, [0, 0, 0.002])
+
+
+def test_tilted_crossing_edges_normal_is_cross_product():
+    """Two wedge-shaped ridges whose edges cross skew: normal = e1 x e2 oriented j -> i."""
+    roof = Polyhedron.from_faces(
+        [(-1, -1, -1), (1, -1, -1), (1, 1, -1), (-1, 1, -1), (-1, 0, 0), (1, 0, 0)],
+        [[0, 3, 2, 1], [0, 1, 5, 4], [2, 3, 4, 5], [1, 2, 5], [3, 0, 4]])
+    rot = Rotation.from_rotvec([0, 0, 1.0]).as_matrix() @ np.diag([1, 1, -1.0])
+    flip = roof.moved(roof.vertices @ rot.T)
+    # mirrored by z -> -z: faces must be reversed to keep them outward
+    flip = Polyhedron.from_faces(flip.vertices, [f[::-1].tolist() for f in roof.faces])
+    tilt = Rotation.from_rotvec([0.05, 0.02, 0]).as_matrix()
+    upper = transformed(flip, tilt, np.array([0.1, 0.05, 0.003]))
+    c = detect_contacts([roof, upper], 0.02)
+    check_invariants(c)
+    assert len(c) == 1 and c.kind[0] == EDGE_EDGE
+    e1 = np.array([1.0, 0, 0])
+    e2 = tilt @ rot @ e1
+    n = np.cross(e1, e2)
+    n /= np.linalg.norm(n) * np.sign(n[2])
+    assert np.allclose(c.normal[0], n)
+    assert c.point_j[0][1] == pytest.approx(0.0) and c.point_j[0][2] == pytest.approx(0.0)
+    assert 0 < c.gap[0] < 0.004
+
+
+def test_vertex_on_vertex_shortest_exit():
+    """Corner on corner, diagonal: the plane with the largest gap wins (eq. 4)."""
+    lower = box((-1, -1, -1), (0, 0, 0), tags=[0, 5, 0, 6, 0, 0])
+    for shift, normal, tag in (((0.001, 0.002, 0.004), (0, 0, 1), 5),
+                               ((0.004, 0.002, 0.001), (1, 0, 0), 6),
+                               ((0.002, 0.003, 0.001), (0, 1, 0), 0)):
+        upper = box(shift, np.add(shift, 1))
+        c = detect_contacts([lower, upper], 0.01)
+        check_invariants(c)
+        assert len(c) == 1 and c.kind[0] == VERTEX_VERTEX
+        assert np.allclose(c.normal[0], normal)
+        assert c.face_tag[0] == tag
+        assert np.allclose(c.point_i[0], shift) and np.allclose(c.point_j[0], 0)
+        assert c.gap[0] == pytest.approx(np.dot(shift, normal))
+        cands = c.cand_normals[c.cand_indptr[0]:c.cand_indptr[1]]
+        assert len(cands) == 3  # the three face planes at the corner (crosses coincide)
+        assert np.allclose(np.sort(np.abs(cands), axis=0), [[0, 0, 0], [0, 0, 0], [1, 1, 1]])
+
+
+def test_overlapping_corners_exit_through_the_shallowest_face():
+    """Corners overlapping by (1, 2, 0.5) mm: constraints at the corners of the overlap
+    rectangle, all on the top face plane; no sideways edge-edge exits."""
+    lower = box((-1, -1, -1), (0, 0, 0))
+    shift = np.array([-0.001, -0.002, -0.0005])
+    c = detect_contacts([lower, box(shift, shift + 1)], 0.01)
+    check_invariants(c)
+    assert np.allclose(c.normal, [0, 0, 1])
+    assert np.allclose(c.gap, -0.0005)
+    xy = sorted(map(tuple, np.round(c.point_j[:, :2], 9).tolist()))
+    assert xy == [(-0.001, -0.002), (-0.001, 0.0), (0.0, -0.002), (0.0, 0.0)]
+
+
+def test_vertex_on_edge():
+    """A cube balanced on a corner just above a slab's edge: v-e, and the shortest exit
+    (eq. 4) picks the face plane when open, a cross-product plane when penetrating."""
+    slab = box((-2, -2, -1), (0, 2, 0), tags=[0, 3, 0, 4, 0, 0])
+    rot = Rotation.from_euler("xy", [np.arctan(np.sqrt(0.5)), np.pi / 4]).as_matrix()
+    cube = transformed(box((0, 0, 0), (1, 1, 1)), rot, np.zeros(3))
+    low = int(np.argmin(cube.vertices[:, 2]))
+    rel = cube.vertices - cube.vertices[low]
+    assert np.allclose(rel[0], [-np.sqrt(0.5), 0, np.sqrt(0.5)])  # one edge across the slab
+    for dz, normal, tag in ((0.001, [0, 0, 1], 3),
+                            (-0.001, [np.sqrt(0.5), 0, np.sqrt(0.5)], -1)):
+        cube_at = cube.moved(rel + [0, 0.3, dz])
+        c = detect_contacts([slab, cube_at], 0.01)
+        check_invariants(c)
+        # penetrating, the edge across the slab also crosses the slab's edge (e-e) on the
+        # same plane; open, it does not
+        assert np.allclose(c.normal, normal) and np.allclose(c.gap, dz * normal[2])
+        assert sorted(c.kind.tolist()) == ([EDGE_EDGE] if dz < 0 else []) + [VERTEX_EDGE]
+        c = c.subset(c.kind == VERTEX_EDGE)
+        assert np.allclose(c.point_i[0], [0, 0.3, dz]) and np.allclose(c.point_j[0], [0, 0.3, 0])
+        assert np.allclose(c.normal[0], normal)
+        assert c.gap[0] == pytest.approx(dz * normal[2])
+        assert c.face_tag[0] == tag
+        cands = c.cand_normals[c.cand_indptr[0]:c.cand_indptr[1]]
+        assert len(cands) >= 2 and np.any(np.all(np.isclose(cands, normal), axis=1))
+
+
+# --------------------------------------------------------------------------- concave blocks
+
+
+def test_l_block_pieces_are_valid():
+    blk = l_block()
+    assert not blk.problems()
+    assert len(blk.pieces) == 2
+    assert all(np.sum(p.face_surface < 0) == 1 for p in blk.pieces)
+
+
+def test_vertex_in_concave_corner_gets_one_plane_per_sub_angle():
+    """A pyramid's apex pushed into the concave edge of an L block: two constraints
+    (floor +z, wall +x), no deep false penetration."""
+    lb = l_block(tags=list(range(8)))
+    apex = np.array([1.0, 1.0, 1.0])
+    axis = np.array([1.0, 0, 1.0]) / np.sqrt(2)
+    u, w = np.array([-1.0, 0, 1.0]) / np.sqrt(2), np.array([0, 1.0, 0])
+    base = [apex + 0.5 * axis + 0.2 * (np.cos(t) * u + np.sin(t) * w)
+            for t in np.linspace(0, 2 * np.pi, 5)[:-1]]
+    for pen in (0.0, 0.003):
+        pyr = convex_block([apex - pen * axis, *(b - pen * axis for b in base)])
+        c = detect_contacts([lb, pyr], 0.01)
+        check_invariants(c)
+        assert len(c) == 2
+        assert sorted(map(tuple, c.normal.round(9).tolist())) == [(0, 0, 1), (1, 0, 0)]
+        assert np.allclose(c.point_i, apex - pen * axis)
+        assert np.allclose(c.gap, -pen / np.sqrt(2))
+        assert sorted(c.face_tag.tolist()) == [4, 5]  # floor top (face 4), wall side (5)
+
+
+def test_wedge_table_4():
+    """Paper Table 4: six constraints at four positions on the two joint planes."""
+    base, wedge = wedge_model()
+    assert not base.problems() and not wedge.problems()
+    c = detect_contacts([base, wedge], 0.01)
+    check_invariants(c)
+    n1 = dip_normal(50, 110)  # base's outward normal on J1 = from base (j) into wedge (i)
+    n2 = dip_normal(55, 240)
+    assert np.allclose(n1, [0.72, -0.26, 0.64], atol=0.01)
+    assert np.allclose(-n2, [0.71, 0.41, -0.57], atol=0.01)
+    assert np.all(c.block_i == 1) and np.all(c.block_j == 0)
+    got = sorted((tuple(np.round(p, 2)), int(t)) for p, t in zip(c.point_i, c.face_tag,
+                                                                 strict=True))
+    want = sorted([((0.0, 3.0, 10.0), 1), ((0.0, 3.0, 10.0), 2), ((-2.55, -4.0, 10.0), 1),
+                   ((0.91, -4.0, 6.13), 1), ((0.91, -4.0, 6.13), 2), ((4.04, -4.0, 10.0), 2)])
+    assert got == want
+    for k in range(len(c)):
+        expect = n1 if c.face_tag[k] == 1 else n2
+        assert np.allclose(c.normal[k], expect, atol=1e-5)
+    assert np.allclose(c.gap, 0.0, atol=1e-5)
+    assert np.allclose(c.point_i, c.point_j, atol=1e-5)
+
+
+def test_wedge_sunk_stays_on_the_joint_planes():
+    """Sunk 2 mm: every constraint stays on J1 or J2 with gap = -2 mm x n_z; the overlap
+    polygons of the joint faces add edge-edge points but nothing else."""
+    base, wedge = wedge_model()
+    sunk = wedge.moved(wedge.vertices + [0, 0, -0.002])
+    c = detect_contacts([base, sunk], 0.01)
+    check_invariants(c)
+    assert 6 <= len(c) <= 8
+    n1, n2 = dip_normal(50, 110), dip_normal(55, 240)
+    on1 = np.isclose(c.normal @ n1, 1.0)
+    on2 = np.isclose(c.normal @ n2, 1.0)
+    assert np.all(on1 | on2) and on1.sum() >= 3 and on2.sum() >= 3
+    assert np.allclose(c.gap, -0.002 * c.normal[:, 2])
+    assert np.all(np.isin(c.face_tag[c.kind != EDGE_EDGE], [1, 2]))
+
+
+# --------------------------------------------------------------------------- properties
+
+
+def random_convex(rng: np.random.Generator, center, size: float) -> Polyhedron:
+    pts = rng.normal(size=(12, 3))
+    pts /= np.linalg.norm(pts, axis=1, keepdims=True)
+    return convex_block(np.asarray(center) + size * pts * rng.uniform(0.6, 1.0, (12, 1)))
+
+
+def random_scene(seed: int) -> list[Polyhedron]:
+    """Two random convex blocks or a convex block against an L block, close together."""
+    rng = np.random.default_rng(seed)
+    if seed % 3 == 0:
+        lb = l_block()
+        c = np.array([1.5, 1.0, 1.5]) + rng.uniform(-0.1, 0.1, 3)
+        return [lb, random_convex(rng, c, 0.75)]
+    a = random_convex(rng, [0, 0, 0], 1.0)
+    d = rng.normal(size=3)
+    d /= np.linalg.norm(d)
+    b = random_convex(rng, [0, 0, 0], 1.0)
+    # slide b along d until it just stops overlapping a's hull-supporting slab
+    shift = a.vertices @ d
+    gap = rng.uniform(-0.01, 0.01)
+    b = b.moved(b.vertices + d * (shift.max() - (b.vertices @ d).min() + gap))
+    return [a, b]
+
+
+@settings(max_examples=25, deadline=None, database=None)
+@given(st.integers(0, 10**6))
+def test_swapping_blocks_mirrors_constraints(seed):
+    a, b = random_scene(seed)
+    c1 = detect_contacts([a, b], 0.02)
+    c2 = detect_contacts([b, a], 0.02)
+    check_invariants(c1)
+    check_invariants(c2)
+    mirror = ContactSet(block_i=1 - c2.block_j, block_j=1 - c2.block_i, kind=c2.kind,
+                        point_i=c2.point_j, point_j=c2.point_i, normal=-c2.normal,
+                        gap=c2.gap)
+    assert as_rows(c1) == as_rows(mirror)
+
+
+@settings(max_examples=25, deadline=None, database=None)
+@given(st.integers(0, 10**6), st.integers(0, 10**6))
+def test_rigid_motion_of_scene_moves_constraints(seed, seed2):
+    blocks = random_scene(seed)
+    rng = np.random.default_rng(seed2)
+    rot = Rotation.random(random_state=rng).as_matrix()
+    shift = rng.uniform(-5, 5, 3)
+    c1 = detect_contacts(blocks, 0.02)
+    c2 = detect_contacts([transformed(b, rot, shift) for b in blocks], 0.02)
+    check_invariants(c2)
+    assert len(c1) == len(c2)
+    o1 = np.lexsort(c1.key.T[::-1])
+    o2 = np.lexsort(c2.key.T[::-1])
+    assert np.array_equal(c1.key[o1], c2.key[o2])
+    assert np.array_equal(c1.kind[o1], c2.kind[o2])
+    assert np.allclose(c1.gap[o1], c2.gap[o2], atol=1e-9)
+    assert np.allclose(c1.normal[o1] @ rot.T, c2.normal[o2], atol=1e-7)
+    assert np.allclose(c1.point_i[o1] @ rot.T + shift, c2.point_i[o2], atol=1e-7)
+
+
+@settings(max_examples=25, deadline=None, database=None)
+@given(st.integers(0, 10**6), st.floats(0.011, 0.5))
+def test_separated_blocks_produce_nothing(seed, sep):
+    a, b = random_scene(seed)
+    d = np.array([0.0, 0.0, 1.0])
+    top = a.vertices[a.surface_vertex_ids] @ d
+    low = b.vertices[b.surface_vertex_ids] @ d
+    b = b.moved(b.vertices + d * (top.max() - low.min() + sep))
+    assert len(detect_contacts([a, b], 0.01)) == 0
+
+
+@settings(max_examples=25, deadline=None, database=None)
+@given(st.integers(0, 10**6))
+def test_contacts_are_near_both_blocks(seed):
+    """Every contact point lies on (within snap of) its block's surface region."""
+    blocks = random_scene(seed)
+    c = detect_contacts(blocks, 0.02)
+    for k in range(len(c)):
+        for blk, p in ((blocks[c.block_i[k]], c.point_i[k]), (blocks[c.block_j[k]], c.point_j[k])):
+            lo, hi = blk.bounds
+            assert np.all(p >= lo - 1e-9) and np.all(p <= hi + 1e-9)
+        assert c.gap[k] > -0.04 and c.gap[k] < 0.02 + 1e-6
+
+
+def test_keys_are_stable_under_small_motion():
+    lb = l_block()
+    cube = box((1.2, 0.5, 1.0), (1.7, 1.0, 1.5))
+    c1 = detect_contacts([lb, cube], 0.01)
+    rot = Rotation.from_rotvec([0.001, -0.002, 0.003]).as_matrix()
+    moved = transformed(cube, rot, np.array([0.0003, -0.0002, -0.0004]))
+    c2 = detect_contacts([lb, moved], 0.01)
+    assert len(c1) == 4
+    assert c1.key.tolist() == c2.key.tolist()
+    assert len({tuple(k) for k in c1.key.tolist()}) == 4
+
+
+def test_grid_of_boxes_contacts():
+    """A 3 x 3 x 2 stack of unit boxes: every face neighbour pair is in contact with a
+    plane along their shared face; diagonal neighbours may touch at corners only."""
+    blocks = [box((x, y, z), (x + 1, y + 1, z + 1)) for x in range(3) for y in range(3)
+              for z in range(2)]
+    c = detect_contacts(blocks, 0.01)
+    check_invariants(c)
+    centers = np.array([b.centroid for b in blocks])
+    d = centers[c.block_i] - centers[c.block_j]
+    face_nb = np.abs(d).sum(axis=1) == 1
+    assert np.allclose(c.normal[face_nb], d[face_nb])
+    pairs = {(int(i), int(j)) for i, j, f in zip(c.block_i, c.block_j, face_nb, strict=True)
+             if f}
+    assert len(pairs) == 3 * 3 * 1 + 2 * (2 * 3 * 2)
+    assert np.allclose(c.gap, 0.0)
