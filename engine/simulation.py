@@ -37,6 +37,8 @@ DT_GROW = 1.5
 FRICTION_RTOL = 1e-6
 #: cycles allowed per mode change for the explicit friction forces to settle (no refactor)
 FRICTION_ITERATIONS_PER_CHANGE = 6
+#: locked <-> sliding switches a contact may make in one step before its mode is kept
+MAX_SHEAR_SWITCHES = 2
 
 
 @dataclass
@@ -92,6 +94,7 @@ class StepResult:
     shear_force: np.ndarray  # (c, 3) N on block i
     friction_work: float
     iterations: int
+    mode_changes: int = 0
 
 
 @dataclass
@@ -328,6 +331,9 @@ class Simulation:
         f_block = asm.scatter_vector(self.dof_map, np.arange(self.n), fb, nu)
         c = len(contacts)
         mode, shear0, tangent, broken = self.initial_modes(contacts, dt)
+        # locked <-> sliding switches per contact in this step; a contact that switched
+        # twice keeps its shear mode for the rest of the step (no flip-flop)
+        switches = np.zeros(len(contacts), dtype=np.int64)
         bi, bj = contacts.block_i, contacts.block_j
         n = contacts.normal
         d0 = contacts.gap
@@ -396,7 +402,8 @@ class Simulation:
             limit = tan_phi * np.maximum(normal_force, 0.0) + np.where(broken, 0.0,
                                                                        cohesion_force)
             fs = self.ks * np.linalg.norm(total_shear, axis=1)
-            to_slide = still & locked & (fs > limit * (1 + 1e-9))
+            free = switches < MAX_SHEAR_SWITCHES
+            to_slide = still & locked & free & (fs > limit * (1 + 1e-9))
             ts_norm = np.linalg.norm(total_shear, axis=1)
             new_mode[to_slide] = SLIDING
             new_tangent[to_slide] = total_shear[to_slide] / np.maximum(ts_norm[to_slide],
@@ -405,7 +412,9 @@ class Simulation:
             along = _rows_dot(dr_t, tangent)
             # paper Table 2: a sliding contact locks when its slip reverses or when a
             # locked spring could carry that slip within the friction limit
-            relock = still & sliding & ((along < 0) | (self.ks * along <= tan_phi * normal_force))
+            relock = still & sliding & free & ((along < 0)
+                                               | (self.ks * along <= tan_phi * normal_force))
+            switches += to_slide | relock
             new_mode[relock] = LOCKED
             # the re-locked spring continues from the friction force (no jump)
             offset[relock] = (fric_mag[relock, None] / self.ks * tangent[relock]
@@ -450,6 +459,7 @@ class Simulation:
                     d=d, contacts=_with_modes(contacts, mode, tangent, d1),
                     gap1=d1, shear=np.where(locked[:, None], total_shear, 0.0), slip=dr_t,
                     normal_force=nf, shear_force=sf, friction_work=fw, iterations=it,
+                    mode_changes=mode_changes,
                 )
         raise StepFailure(
             f"open-close iteration did not converge ({mode_changes} mode changes, "
@@ -527,7 +537,7 @@ class Simulation:
             self.advance(res, dt)
             if dt < self.dt and dt < remaining:
                 self.dt = dt  # remember the cut; grow back after easy steps
-            elif res.iterations <= 3:
+            elif res.mode_changes <= c.max_open_close_iterations // 2:
                 self.dt = min(c.time_step, self.dt * DT_GROW)
             self.last = res
             self.last_dt = dt

@@ -365,6 +365,38 @@ def cmd_plot(args: argparse.Namespace) -> int:
     return EXIT_OK
 
 
+# --------------------------------------------------------------------------- service
+
+
+def cmd_serve(args: argparse.Namespace) -> int:
+    """Start the REST API with its embedded workers (or the RQ backend, by settings)."""
+    from service.app import serve
+
+    serve(args.host, args.port)
+    return EXIT_OK
+
+
+def cmd_worker(args: argparse.Namespace) -> int:
+    """Start one scale-out worker on the Redis queue."""
+    from service.worker import main as worker_main
+
+    return int(worker_main(args.worker_args))
+
+
+def cmd_submit(args: argparse.Namespace) -> int:
+    """Submit a scene to a running server; with --wait, follow it to the end."""
+    from service.client import ServiceError, print_status, submit
+
+    try:
+        doc = submit(args.url, args.scene, wait=args.wait, process=args.process,
+                     api_key=args.api_key, on_status=print_status)
+    except ServiceError as exc:
+        print(str(exc), file=sys.stderr)
+        return EXIT_SCENE
+    _print_json(doc)
+    return EXIT_OK if doc.get("status") in ("successful", "accepted", "running") else EXIT_IO
+
+
 # --------------------------------------------------------------------------- parser
 
 
@@ -419,6 +451,25 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("result", help="HDF5 result file")
     p.add_argument("--out", metavar="DIR", help="output folder (default: beside the result)")
     p.set_defaults(func=cmd_plot)
+
+    p = sub.add_parser("serve", help="start the REST API and its embedded workers")
+    p.add_argument("--host", default="127.0.0.1", help="address to listen on")
+    p.add_argument("--port", type=int, default=8000, help="port (default 8000)")
+    p.set_defaults(func=cmd_serve)
+
+    p = sub.add_parser("worker", help="start a scale-out worker (Redis queue)",
+                       add_help=False)
+    p.add_argument("worker_args", nargs=argparse.REMAINDER,
+                   help="options of the worker (see `polydda worker --help`)")
+    p.set_defaults(func=cmd_worker)
+
+    p = sub.add_parser("submit", help="submit a scene to a running server")
+    p.add_argument("scene", help="scene JSON file")
+    p.add_argument("--url", default="http://127.0.0.1:8000", help="server URL")
+    p.add_argument("--process", help="simulation, factor-of-safety or block-cutting")
+    p.add_argument("--api-key", help="API key, if the server requires one")
+    p.add_argument("--wait", action="store_true", help="follow the job to its end")
+    p.set_defaults(func=cmd_submit)
 
     p = sub.add_parser("schema", help="print the JSON Schema of the scene format")
     p.set_defaults(func=cmd_schema)

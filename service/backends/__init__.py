@@ -1,0 +1,117 @@
+"""Queue backends: where jobs run. Both keep the SQLite job table as the record of every job.
+
+- `embedded` (default): a supervisor thread in the API process starts each job in its own
+  process (multiprocessing, spawn) up to `max_workers`.
+- `rq`: jobs go to a Redis queue worked by `polydda worker` processes on any machine; a
+  thread in the API copies their progress from Redis into the job table.
+
+A backend gets `submitted(job)` after the job's row was committed and `cancel(job_id)` on
+DELETE; the job function itself (service.jobs.execute) is the same for both.
+"""
+
+from __future__ import annotations
+
+import logging
+import threading
+import time
+
+from service.backends.store import ACCEPTED, DISMISSED, RUNNING, JobRecord, JobStore
+from service.settings import Settings
+
+log = logging.getLogger(__name__)
+
+
+class Backend:
+    """Supervisor thread (`tick` every `period` s, or sooner after `wake`) and job hooks."""
+
+    period = 0.2
+
+    def __init__(self, settings: Settings, store: JobStore) -> None:
+        self.settings, self.store = settings, store
+        self._wake = threading.Event()
+        self._stopping = threading.Event()
+        self._thread: threading.Thread | None = None
+
+    # ------------------------------------------------------------------ lifecycle
+    def start(self) -> None:
+        self.recover()
+        self._thread = threading.Thread(target=self._loop, name="polydda-supervisor",
+                                        daemon=True)
+        self._thread.start()
+
+    def stop(self) -> None:
+        self._stopping.set()
+        self._wake.set()
+        if self._thread is not None:
+            self._thread.join(timeout=30)
+
+    def wake(self) -> None:
+        self._wake.set()
+
+    def _loop(self) -> None:
+        while not self._stopping.is_set():
+            try:
+                self.tick()
+            except Exception:  # the supervisor must outlive any one bad tick
+                log.exception("supervisor tick failed")
+            self._wake.wait(self.period)
+            self._wake.clear()
+
+    # ------------------------------------------------------------------ hooks
+    def recover(self) -> None:
+        """Called once at start: settle jobs left `running` by an earlier API process."""
+
+    def tick(self) -> None:
+        """One round of supervision (start, reap, enforce cancellation, sync)."""
+
+    def submitted(self, job: JobRecord) -> None:
+        """A new accepted job was committed."""
+        self.wake()
+
+    def on_cancel(self, job_id: str, started: bool) -> None:
+        """A job was dismissed before it started (`started` False) or asked to stop."""
+
+    # ------------------------------------------------------------------ shared
+    def cancel(self, job_id: str) -> None:
+        """Dismiss an accepted job at once; ask a running one to stop (killed after grace)."""
+        now = time.time()
+        if self.store.update(job_id, only_if=[ACCEPTED], status=DISMISSED, finished=now,
+                             message="dismissed before it started"):
+            self.on_cancel(job_id, started=False)
+            return
+        job = self.store.get(job_id)
+        if job is not None and job.status == RUNNING and job.cancel_requested is None:
+            self.store.update(job_id, only_if=[RUNNING], cancel_requested=now)
+        self.on_cancel(job_id, started=True)
+        self.wake()
+
+    def requeue_or_fail(self, job: JobRecord, why: str) -> None:
+        """A running job lost its worker: back to the queue, or failed after max attempts."""
+        now = time.time()
+        if job.cancel_requested is not None:
+            self.store.update(job.id, only_if=[RUNNING], status=DISMISSED, finished=now,
+                              message=f"cancelled ({why}); partial results kept")
+        elif job.attempts >= self.settings.max_attempts:
+            self.store.update(
+                job.id, only_if=[RUNNING], status="failed", finished=now, error_kind="system",
+                message=f"system error: {why}, {job.attempts} times; not retried again")
+        else:
+            self.store.update(job.id, only_if=[RUNNING], status=ACCEPTED, worker_pid=None,
+                              message=f"re-queued: {why} (attempt {job.attempts} of "
+                                      f"{self.settings.max_attempts})")
+            self.submitted_again(job)
+
+    def submitted_again(self, job: JobRecord) -> None:
+        """A job went back to `accepted` after its worker was lost."""
+        self.wake()
+
+
+def make_backend(settings: Settings, store: JobStore) -> Backend:
+    """The backend `settings.backend` names."""
+    if settings.backend == "rq":
+        from service.backends.rq import RqBackend
+
+        return RqBackend(settings, store)
+    from service.backends.embedded import EmbeddedBackend
+
+    return EmbeddedBackend(settings, store)

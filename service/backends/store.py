@@ -1,0 +1,244 @@
+"""The job table: one SQLite file (WAL mode), the single record of every job.
+
+Every API thread and every embedded job process opens its own short-lived connection;
+writes that change a job's state are conditional on its current status, so two writers
+(a job process and the supervisor) can never move a job backwards.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import sqlite3
+import time
+import uuid
+from collections.abc import Iterable, Iterator, Sequence
+from dataclasses import dataclass, fields
+from pathlib import Path
+from typing import Any
+
+ACCEPTED, RUNNING = "accepted", "running"
+SUCCESSFUL, FAILED, DISMISSED = "successful", "failed", "dismissed"
+ACTIVE = (ACCEPTED, RUNNING)
+FINAL = (SUCCESSFUL, FAILED, DISMISSED)
+STATUSES = ACTIVE + FINAL
+
+_SCHEMA = """
+CREATE TABLE IF NOT EXISTS jobs (
+    id TEXT PRIMARY KEY,
+    process TEXT NOT NULL,
+    status TEXT NOT NULL,
+    client TEXT NOT NULL,
+    idempotency_key TEXT,
+    request_hash TEXT,
+    scene TEXT NOT NULL,
+    created REAL NOT NULL,
+    started REAL,
+    finished REAL,
+    updated REAL NOT NULL,
+    progress REAL NOT NULL DEFAULT 0,
+    step INTEGER,
+    simulated_time REAL,
+    duration REAL,
+    message TEXT NOT NULL DEFAULT '',
+    error_kind TEXT,
+    cancel_requested REAL,
+    attempts INTEGER NOT NULL DEFAULT 0,
+    worker_pid INTEGER
+);
+CREATE UNIQUE INDEX IF NOT EXISTS jobs_idempotency ON jobs(client, idempotency_key)
+    WHERE idempotency_key IS NOT NULL;
+CREATE INDEX IF NOT EXISTS jobs_status ON jobs(status, created);
+CREATE INDEX IF NOT EXISTS jobs_client ON jobs(client, status);
+"""
+
+
+@dataclass
+class JobRecord:
+    """One row of the job table (without the scene text)."""
+
+    id: str
+    process: str
+    status: str
+    client: str
+    idempotency_key: str | None
+    request_hash: str | None
+    created: float
+    started: float | None
+    finished: float | None
+    updated: float
+    progress: float
+    step: int | None
+    simulated_time: float | None
+    duration: float | None
+    message: str
+    error_kind: str | None
+    cancel_requested: float | None
+    attempts: int
+    worker_pid: int | None
+
+    @property
+    def is_final(self) -> bool:
+        return self.status in FINAL
+
+
+_COLUMNS = ", ".join(f.name for f in fields(JobRecord))
+#: fields a job's progress and outcome may change (the rest are fixed at submission)
+UPDATABLE = frozenset({"status", "started", "finished", "updated", "progress", "step",
+                       "simulated_time", "duration", "message", "error_kind",
+                       "cancel_requested", "attempts", "worker_pid"})
+
+
+class QuotaExceeded(Exception):
+    """The client already has its quota of unfinished jobs."""
+
+    def __init__(self, active: int, quota: int) -> None:
+        super().__init__(f"{active} unfinished jobs; the quota is {quota}")
+        self.active, self.quota = active, quota
+
+
+class IdempotencyConflict(Exception):
+    """An Idempotency-Key was reused with a different request."""
+
+
+class JobStore:
+    """Access to the job table at `path` (created with its schema on first use)."""
+
+    def __init__(self, path: Path) -> None:
+        self.path = Path(path)
+        self.path.parent.mkdir(parents=True, exist_ok=True)
+        with self.connect() as db:
+            db.execute("PRAGMA journal_mode=WAL")
+            db.executescript(_SCHEMA)
+
+    @contextlib.contextmanager
+    def connect(self) -> Iterator[sqlite3.Connection]:
+        """A connection in autocommit mode; use `with db:`-less BEGIN IMMEDIATE for writes."""
+        db = sqlite3.connect(self.path, timeout=30.0, isolation_level=None)
+        try:
+            db.execute("PRAGMA busy_timeout=30000")
+            db.execute("PRAGMA synchronous=NORMAL")
+            yield db
+        finally:
+            db.close()
+
+    @contextlib.contextmanager
+    def transaction(self) -> Iterator[sqlite3.Connection]:
+        """One write transaction (BEGIN IMMEDIATE ... COMMIT, rolled back on error)."""
+        with self.connect() as db:
+            db.execute("BEGIN IMMEDIATE")
+            try:
+                yield db
+            except BaseException:
+                db.execute("ROLLBACK")
+                raise
+            db.execute("COMMIT")
+
+    # ------------------------------------------------------------------ reading
+    @staticmethod
+    def _record(row: Sequence[Any] | None) -> JobRecord | None:
+        return None if row is None else JobRecord(*row)
+
+    def get(self, job_id: str) -> JobRecord | None:
+        with self.connect() as db:
+            row = db.execute(f"SELECT {_COLUMNS} FROM jobs WHERE id = ?", (job_id,)).fetchone()
+        return self._record(row)
+
+    def scene(self, job_id: str) -> str:
+        """The scene JSON text of a job (KeyError if there is no such job)."""
+        with self.connect() as db:
+            row = db.execute("SELECT scene FROM jobs WHERE id = ?", (job_id,)).fetchone()
+        if row is None:
+            raise KeyError(job_id)
+        return str(row[0])
+
+    def list(self, statuses: Iterable[str] = (), process: str | None = None, limit: int = 50,
+             offset: int = 0) -> tuple[list[JobRecord], int]:
+        """Jobs newest first, filtered by status and process, and how many match in all."""
+        where, args = [], []
+        statuses = list(statuses)
+        if statuses:
+            where.append(f"status IN ({', '.join('?' * len(statuses))})")
+            args.extend(statuses)
+        if process is not None:
+            where.append("process = ?")
+            args.append(process)
+        clause = f" WHERE {' AND '.join(where)}" if where else ""
+        with self.connect() as db:
+            total = db.execute(f"SELECT COUNT(*) FROM jobs{clause}", args).fetchone()[0]
+            rows = db.execute(
+                f"SELECT {_COLUMNS} FROM jobs{clause} ORDER BY created DESC, rowid DESC "
+                "LIMIT ? OFFSET ?", [*args, limit, offset]).fetchall()
+        return [JobRecord(*r) for r in rows], int(total)
+
+    def active(self) -> list[JobRecord]:
+        """Accepted and running jobs, oldest first."""
+        with self.connect() as db:
+            rows = db.execute(f"SELECT {_COLUMNS} FROM jobs WHERE status IN (?, ?) "
+                              "ORDER BY created, rowid", ACTIVE).fetchall()
+        return [JobRecord(*r) for r in rows]
+
+    # ------------------------------------------------------------------ writing
+    def submit(self, *, process: str, scene: str, client: str, quota: int,
+               idempotency_key: str | None = None,
+               request_hash: str | None = None) -> tuple[JobRecord, bool]:
+        """Create an accepted job in one transaction; `(job, created)`.
+
+        With an idempotency key already used by this client, the earlier job is returned
+        (`created` False); a different request under the same key raises
+        IdempotencyConflict. A client at its quota of unfinished jobs gets QuotaExceeded.
+        """
+        now = time.time()
+        with self.transaction() as db:
+            if idempotency_key is not None:
+                row = db.execute(
+                    f"SELECT {_COLUMNS} FROM jobs WHERE client = ? AND idempotency_key = ?",
+                    (client, idempotency_key)).fetchone()
+                if row is not None:
+                    job = JobRecord(*row)
+                    if job.request_hash != request_hash:
+                        raise IdempotencyConflict(idempotency_key)
+                    return job, False
+            active = db.execute("SELECT COUNT(*) FROM jobs WHERE client = ? AND status IN (?, ?)",
+                                (client, *ACTIVE)).fetchone()[0]
+            if active >= quota:
+                raise QuotaExceeded(int(active), quota)
+            job_id = str(uuid.uuid4())
+            db.execute(
+                "INSERT INTO jobs (id, process, status, client, idempotency_key, request_hash, "
+                "scene, created, updated) VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?)",
+                (job_id, process, ACCEPTED, client, idempotency_key, request_hash, scene, now,
+                 now))
+            row = db.execute(f"SELECT {_COLUMNS} FROM jobs WHERE id = ?", (job_id,)).fetchone()
+        return JobRecord(*row), True
+
+    def update(self, job_id: str, only_if: Iterable[str] | None = None, **values: Any) -> bool:
+        """Set fields of a job (only while its status is in `only_if`); True if it changed."""
+        bad = set(values) - UPDATABLE
+        if bad:
+            raise ValueError(f"cannot update {sorted(bad)}")
+        values.setdefault("updated", time.time())
+        sets = ", ".join(f"{k} = ?" for k in values)
+        sql, args = f"UPDATE jobs SET {sets} WHERE id = ?", [*values.values(), job_id]
+        if only_if is not None:
+            allowed = list(only_if)
+            sql += f" AND status IN ({', '.join('?' * len(allowed))})"
+            args.extend(allowed)
+        with self.transaction() as db:
+            return db.execute(sql, args).rowcount == 1
+
+    def claim(self, job_id: str, pid: int | None = None) -> bool:
+        """Move an accepted job to running (False if it is no longer accepted)."""
+        now = time.time()
+        with self.transaction() as db:
+            cur = db.execute(
+                "UPDATE jobs SET status = ?, started = ?, updated = ?, attempts = attempts + 1, "
+                "worker_pid = ?, progress = 0, step = NULL, simulated_time = NULL, message = '' "
+                "WHERE id = ? AND status = ?", (RUNNING, now, now, pid, job_id, ACCEPTED))
+            return cur.rowcount == 1
+
+    def delete(self, job_id: str) -> bool:
+        """Remove a finished job's row (True if one was removed)."""
+        with self.transaction() as db:
+            cur = db.execute(f"DELETE FROM jobs WHERE id = ? AND status IN ({', '.join('?' * 3)})",
+                             (job_id, *FINAL))
+            return cur.rowcount == 1

@@ -1,0 +1,100 @@
+"""Scale-out backend end to end: a real redis-server, real RQ workers (`polydda worker`)."""
+
+from __future__ import annotations
+
+import os
+import shutil
+import subprocess
+import sys
+import time
+from collections.abc import Iterator
+from pathlib import Path
+
+import httpx
+import pytest
+
+from engine.results import open_result
+from tests.service_helpers import (
+    ROOT,
+    Server,
+    cube_scene,
+    free_port,
+    wait_final,
+    wait_until,
+)
+
+REDIS = shutil.which("redis-server")
+pytestmark = pytest.mark.skipif(
+    REDIS is None, reason="redis-server is not installed (apt-get install -y redis-server)")
+
+
+@pytest.fixture
+def redis_url(tmp_path: Path) -> Iterator[str]:
+    port = free_port()
+    proc = subprocess.Popen([str(REDIS), "--port", str(port), "--bind", "127.0.0.1",
+                             "--save", "", "--appendonly", "no", "--dir", str(tmp_path)],
+                            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    from redis import Redis
+
+    conn = Redis(port=port)
+
+    def up() -> bool:
+        try:
+            return bool(conn.ping())
+        except Exception:
+            return False
+    try:
+        wait_until(up, 10, "redis-server to answer")
+        yield f"redis://127.0.0.1:{port}/0"
+    finally:
+        conn.close()
+        proc.terminate()
+        proc.wait(10)
+
+
+def start_worker(data: Path, redis_url: str, name: str, log: Path) -> subprocess.Popen[bytes]:
+    env = {**os.environ, "POLYDDA_DATA_DIR": str(data), "POLYDDA_REDIS_URL": redis_url}
+    code = f"from service.worker import main; main(['--name', '{name}'])"
+    with open(log, "ab") as f:
+        return subprocess.Popen([sys.executable, "-c", code], env=env, cwd=ROOT, stdout=f,
+                                stderr=subprocess.STDOUT)
+
+
+def test_jobs_run_on_rq_workers(tmp_path: Path, redis_url: str) -> None:
+    data = tmp_path / "shared"
+    workers = [start_worker(data, redis_url, f"w{k}-{os.getpid()}", tmp_path / f"w{k}.log")
+               for k in range(2)]
+    try:
+        with Server(data, POLYDDA_BACKEND="rq", POLYDDA_REDIS_URL=redis_url,
+                    POLYDDA_CANCEL_GRACE="1") as srv, \
+                httpx.Client(base_url=srv.url, timeout=30) as c:
+            urls = [c.post("/jobs", json=cube_scene(duration=0.05 + 0.01 * k)).headers[
+                "Location"] for k in range(3)]
+            long_url = c.post("/jobs", json=cube_scene(duration=60)).headers["Location"]
+            for k, u in enumerate(urls):
+                doc = wait_final(c, u, 90)
+                assert doc["status"] == "successful", doc
+                assert doc["simulated_time"] == pytest.approx(0.05 + 0.01 * k)
+                res = c.get(u + "/results").json()
+                assert res["summary"]["steps"] == 50 + 10 * k
+            with open_result(data / "jobs" / urls[0].rsplit("/", 1)[1] / "result.h5") as r:
+                assert r.status == "completed"
+            blocks = c.post("/jobs", params={"process": "block-cutting"}, json=cube_scene())
+            assert wait_final(c, blocks.headers["Location"], 60)["status"] == "successful"
+            # cancel the long job on its worker
+            wait_until(lambda: (c.get(long_url).json()["step"] or 0) > 5, 60, "the long job")
+            t0 = time.monotonic()
+            c.delete(long_url)
+            doc = wait_final(c, long_url, 10)
+            print(f"\nrq cancel: dismissed {time.monotonic() - t0:.2f} s after DELETE")
+            assert doc["status"] == "dismissed"
+            assert c.get(long_url + "/results").json()["partial"] is True
+    finally:
+        for w in workers:
+            w.terminate()
+        for w in workers:
+            try:
+                w.wait(20)
+            except subprocess.TimeoutExpired:
+                w.kill()
+                w.wait(10)
