@@ -24,6 +24,7 @@ ENERGY_LABELS = {
     "kinetic": "kinetic", "elastic": "elastic strain", "contact": "contact springs",
     "gravity_work": "work of gravity", "external_work": "work of loads",
     "friction_dissipation": "friction dissipation",
+    "numerical_dissipation": "dissipated by the DDA integrator",
 }
 MAX_HISTORY_BLOCKS = 8
 
@@ -84,7 +85,8 @@ def plot_histories(result: Result | PathLike, path: PathLike,
 def energy_residual(energies: dict[str, np.ndarray]) -> np.ndarray:
     """Energy balance residual `(K,)` J: stored-energy change minus net work since step 0.
 
-    `Δ(kinetic + elastic + contact) - Δ(gravity_work + external_work - friction_dissipation)`;
+    `Δ(kinetic + elastic + contact) - Δ(gravity_work + external_work - friction_dissipation
+    - numerical_dissipation)`;
     terms that are missing or NaN count as zero.
     """
     def term(name: str) -> np.ndarray:
@@ -95,7 +97,8 @@ def energy_residual(energies: dict[str, np.ndarray]) -> np.ndarray:
         return e - e[0]
 
     stored = term("kinetic") + term("elastic") + term("contact")
-    work = term("gravity_work") + term("external_work") - term("friction_dissipation")
+    work = (term("gravity_work") + term("external_work") - term("friction_dissipation")
+            - term("numerical_dissipation"))
     return stored - work
 
 

@@ -52,6 +52,7 @@ VTKHDF_VERSION = (2, 2)
 STATUSES = ("completed", "failed", "cancelled", "stopped")
 ENERGY_NAMES = (
     "kinetic", "elastic", "contact", "gravity_work", "friction_dissipation", "external_work",
+    "numerical_dissipation",
 )
 #: HDF5 file-format bounds: 1.10 is the oldest that has SWMR; ParaView >= 5.x reads it
 LIBVER = ("v110", "v110")

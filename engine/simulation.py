@@ -78,7 +78,8 @@ class State:
     step: int = 0
     memory: dict[tuple[int, ...], ContactMemory] = field(default_factory=dict)
     energies: dict[str, float] = field(default_factory=lambda: {
-        "gravity_work": 0.0, "external_work": 0.0, "friction_dissipation": 0.0})
+        "gravity_work": 0.0, "external_work": 0.0, "friction_dissipation": 0.0,
+        "numerical_dissipation": 0.0})
 
 
 @dataclass
@@ -95,6 +96,7 @@ class StepResult:
     friction_work: float
     iterations: int
     mode_changes: int = 0
+    numerical_dissipation: float = 0.0  # J, of the implicit springs in this step
 
 
 @dataclass
@@ -454,17 +456,42 @@ class Simulation:
                 total_shear = np.einsum("cij,cj->ci", nmat, ra + dr)
                 nf = np.where(closed, -self.kn * d1, 0.0)
                 sf = np.where(locked[:, None], -self.ks * total_shear, 0.0) - fric
-                fw = float(np.sum(fric_mag * np.maximum(_rows_dot(dr_t, tangent), 0.0)))
+                fw = float(np.sum(fric_mag * _rows_dot(dr_t, tangent)))
+                # the implicit penalty springs dissipate ½ k Δ² per step (β = ½, γ = 1)
+                s0 = np.einsum("cij,cj->ci", nmat, ra)
+                num = 0.5 * self.kn * float(np.sum(
+                    closed * ((d1 - d0) ** 2 - np.maximum(d0, 0.0) ** 2)))
+                num += 0.5 * self.ks * float(np.sum(locked * (
+                    _rows_dot(dr_t, dr_t) + _rows_dot(shear0, shear0) - _rows_dot(s0, s0))))
+                # springs that open give up what they stored at the start of the step
+                opened = ~closed & (d0 < 0)
+                num += 0.5 * self.kn * float(np.sum(opened * d0**2))
+                num += 0.5 * self.ks * float(np.sum(opened * _rows_dot(shear0, shear0)))
+                num += self._block_dissipation(d)
                 return StepResult(
                     d=d, contacts=_with_modes(contacts, mode, tangent, d1),
                     gap1=d1, shear=np.where(locked[:, None], total_shear, 0.0), slip=dr_t,
                     normal_force=nf, shear_force=sf, friction_work=fw, iterations=it,
-                    mode_changes=mode_changes,
+                    mode_changes=mode_changes, numerical_dissipation=num,
                 )
         raise StepFailure(
             f"open-close iteration did not converge ({mode_changes} mode changes, "
             f"{it} cycles)"
         )
+
+    def _block_dissipation(self, d: np.ndarray) -> float:
+        """½ dᵀ K d of the implicit elastic and fixed-point springs in a step (J)."""
+        out = 0.0
+        if self.elastic:
+            vol, _ = self.mass_properties()
+            out += 0.5 * float(np.einsum("ni,nij,nj->", d[:, 6:],
+                                         vol[:, None, None] * self.emat, d[:, 6:]))
+        for b, p0 in self.fixed_ref:
+            t = asm.displacement_matrices(self.map_point(b, p0)[None],
+                                          self.state.centroid[b][None])[0]
+            r = t @ d[b]
+            out += 0.5 * self.kf * float(r @ r)
+        return out
 
     def max_point_displacement(self, d: np.ndarray) -> float:
         """Bound on the largest displacement of any block point in the step (m)."""
@@ -484,6 +511,7 @@ class Simulation:
             t = asm.displacement_matrices(self.map_point(b, p0)[None], s.centroid[b][None])[0]
             s.energies["external_work"] += float(f @ (t @ d[b]))
         s.energies["friction_dissipation"] += res.friction_work
+        s.energies["numerical_dissipation"] += res.numerical_dissipation
         rot = rotation_matrix(d[:, 3:6]).reshape(self.n, 3, 3)
         stretch = np.eye(3)[None] + _strain_matrix(d[:, 6:])
         s.affine = np.einsum("nij,njk,nkl->nil", rot, stretch, s.affine)

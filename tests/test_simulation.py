@@ -283,3 +283,26 @@ def test_step_that_cannot_converge_stops_with_clear_status() -> None:
 
 def test_hexahedron_builder_is_valid() -> None:
     assert hexahedron(box([0, 0, 0], [1, 2, 3]).vertices).volume == pytest.approx(6.0)
+
+
+def _balance(frame) -> tuple[float, float]:
+    e = frame.energies
+    work = e["gravity_work"] + e["external_work"]
+    accounted = (e["kinetic"] + e["contact"] + e["elastic"] + e["friction_dissipation"]
+                 + e["numerical_dissipation"])
+    return work, accounted
+
+
+@pytest.mark.parametrize("case", ["free_fall_settled", "incline_sliding"])
+def test_energy_is_accounted_for(case: str) -> None:
+    """Work of gravity = kinetic + contact + friction + integrator dissipation (1e-3)."""
+    model = (_fall_model(1e9, 1.5) if case == "free_fall_settled"
+             else incline_model(20.0, duration=0.5))
+    log = FrameLog()
+    run(model, recorder=log)
+    work, accounted = _balance(log.frames[-1])
+    assert work > 0
+    assert accounted == pytest.approx(work, rel=1e-3)
+    if case == "free_fall_settled":
+        # the impact's energy went into the integrator's dissipation, not into motion
+        assert log.frames[-1].energies["numerical_dissipation"] > 0.9 * work
