@@ -151,3 +151,58 @@ def test_usage_errors(capsys: pytest.CaptureFixture[str]) -> None:
     assert code == 2 and "usage: polydda" in err
     code, _, err = run(capsys, "blocks")
     assert code == 2 and "scene" in err
+
+
+def test_run_writes_result_summary_and_vtkhdf(capsys: pytest.CaptureFixture[str],
+                                              tmp_path: Path) -> None:
+    """`polydda run` on the wedge (φ = 0 so it moves): summary fields, result file readable by
+    our reader and by VTK's vtkHDFReader with the wedge's moved points at the last step."""
+    scene = json.loads(Path(WEDGE).read_text())
+    scene["joint_materials"]["joint"]["friction_angle"] = 0
+    scene["analysis"].update(duration=0.1, record_interval=10)
+    out, summ = tmp_path / "wedge.h5", tmp_path / "summary.json"
+    code, _, err = run(capsys, "run", write_scene(tmp_path, scene), "--out", str(out),
+                       "--summary", str(summ))
+    assert code == 0, err
+    doc = json.loads(summ.read_text())
+    assert doc["status"] == "completed" and doc["steps"] == 100
+    assert doc["simulated_time"] == pytest.approx(0.1)
+    assert {"wall_time", "max_penetration", "blocks"} <= set(doc)
+    wedge = next(b for b in doc["blocks"] if b["name"] == "B2")
+    assert set(wedge) >= {"name", "centroid", "rotation", "displacement", "velocity"}
+    # ½ a t² along the line of intersection at a = g sin ψ (VALIDATION.md 2.1)
+    assert np.linalg.norm(wedge["displacement"]) == pytest.approx(0.5 * 4.718485 * 0.01,
+                                                                  rel=0.02)
+
+    from engine.results import open_result
+
+    with open_result(out) as res:
+        assert res.status == "completed"
+        assert res.n_steps == 11  # step 0 and every 10th step
+        last = res.vertices(res.n_steps - 1)[1]
+        first = res.vertices(0)[1]
+        # a translation (the wedge's rotation is ~1e-6 rad)
+        np.testing.assert_allclose(last - first, np.broadcast_to(wedge["displacement"],
+                                                                 last.shape), atol=1e-5)
+
+    vtk = pytest.importorskip("vtk")
+    reader = vtk.vtkHDFReader()
+    reader.SetFileName(str(out))
+    reader.UpdateInformation()
+    assert reader.GetNumberOfSteps() == 11
+    reader.SetStep(10)
+    reader.Update()
+    data = reader.GetOutput()
+    from vtk.util.numpy_support import vtk_to_numpy
+
+    pts = vtk_to_numpy(data.GetPoints().GetData())
+    ids = vtk_to_numpy(data.GetPointData().GetArray("block_id"))
+    np.testing.assert_allclose(np.sort(pts[ids == 1], axis=0), np.sort(last, axis=0),
+                               atol=1e-9)
+
+
+def test_run_of_a_bad_scene_exits_2(capsys: pytest.CaptureFixture[str], tmp_path: Path) -> None:
+    code, _, err = run(capsys, "run", write_scene(tmp_path, "{not json"), "--out",
+                       str(tmp_path / "x.h5"))
+    assert code == 2 and "Traceback" not in err
+    assert not (tmp_path / "x.h5").exists()
