@@ -174,6 +174,8 @@ class Simulation:
         #: largest displacement of any point in one step (paper eq. 50 in spirit)
         self.max_step_displacement = min(c.max_displacement_ratio * self.scale, 0.5 * thin)
         self.search_distance = 2.0 * self.max_step_displacement
+        #: deepest penetration a converged step may leave (m)
+        self.max_penetration_allowed = c.max_penetration_ratio * thin
         self.radius = np.array([
             np.linalg.norm(p.vertices[p.surface_vertex_ids] - p.centroid, axis=1).max()
             for p in self.polys0
@@ -571,8 +573,10 @@ class Simulation:
                         f"largest displacement {disp:.3g} m exceeds the step limit "
                         f"{self.max_step_displacement:.3g} m")
                 pen = float(np.max(-res.gap1[res.contacts.mode != OPEN], initial=0.0))
-                if pen > self.max_step_displacement:
-                    raise StepFailure(f"penetration {pen:.3g} m exceeds the step limit")
+                if pen > self.max_penetration_allowed:
+                    raise StepFailure(
+                        f"penetration {pen:.3g} m exceeds the limit "
+                        f"{self.max_penetration_allowed:.3g} m")
             except StepFailure as exc:
                 reason = str(exc)
                 dt *= DT_CUT

@@ -539,6 +539,7 @@ def build_model(scene: Scene | str | Path | dict[str, Any]) -> BuildResult:
         dynamic_ratio=a.dynamic_ratio_value,
         block_model=a.block_model,
         max_displacement_ratio=a.max_displacement_ratio,
+        max_penetration_ratio=a.max_penetration_ratio,
         max_open_close_iterations=a.max_open_close_iterations,
         min_time_step=a.min_time_step,
         fixed_point_penalty=a.fixed_point_penalty,
