@@ -86,8 +86,9 @@ class AnalysisControls:
     is `shear_penalty_ratio * penalty`. `dynamic_ratio` is k01 (1 dynamic, 0 static).
     `max_displacement_ratio` limits the largest displacement in a step to this fraction
     of the model size (paper eq. 50 uses a fraction of the smallest edge instead);
-    `max_penetration_ratio` limits contact penetration to this fraction of the thinnest
-    block's thickness (2 V / A): a deeper step is redone with a smaller Δt.
+    `max_penetration_ratio` limits a contact's penetration to this fraction of the
+    thickness (2 V / A) of the thinner of its blocks: a deeper step is redone with a
+    smaller Δt, so nothing tunnels.
     """
 
     duration: float = 1.0
@@ -98,7 +99,7 @@ class AnalysisControls:
     dynamic_ratio: float = 1.0
     block_model: Literal["rigid", "elastic"] = "rigid"
     max_displacement_ratio: float = 0.01
-    max_penetration_ratio: float = 0.02
+    max_penetration_ratio: float = 0.25
     max_open_close_iterations: int = 8
     min_time_step: float = 1e-7
     fixed_point_penalty: float | None = None

@@ -55,14 +55,40 @@ class Progress:
         return min(1.0, self.time / self.duration) if self.duration > 0 else 1.0
 
 
+def _row_keys(key: np.ndarray) -> np.ndarray:
+    """Contact keys `(c, 4) int64` as one sortable scalar per row `(c,)` (bytes)."""
+    k = np.ascontiguousarray(key, dtype=np.int64)
+    return k.view(np.dtype((np.void, k.dtype.itemsize * k.shape[1]))).ravel()
+
+
 @dataclass
 class ContactMemory:
-    """What a closed contact carries to the next step (inherited mode, paper 2.4 (2))."""
+    """What the closed contacts carry to the next step (inherited modes, paper 2.4 (2)).
 
-    mode: int
-    shear: np.ndarray  # accumulated tangential displacement r_a (3,), m
-    tangent: np.ndarray  # sliding direction (3,)
-    broken: bool  # cohesion / tensile strength lost
+    One row per closed contact, sorted by key: `key (m, 4)`, `mode (m,)`, accumulated
+    tangential displacement `shear (m, 3)` m, sliding direction `tangent (m, 3)`, and
+    `broken (m,)` (cohesion and tensile strength lost).
+    """
+
+    key: np.ndarray = field(default_factory=lambda: np.zeros((0, 4), dtype=np.int64))
+    mode: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int8))
+    shear: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
+    tangent: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
+    broken: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=bool))
+
+    def __post_init__(self) -> None:
+        order = np.argsort(_row_keys(self.key), kind="stable")
+        for name in ("key", "mode", "shear", "tangent", "broken"):
+            setattr(self, name, getattr(self, name)[order])
+        self._sorted = _row_keys(self.key)
+
+    def find(self, key: np.ndarray) -> np.ndarray:
+        """Row of each key `(c, 4)` in the memory `(c,) int`, -1 where it is not there."""
+        if len(self._sorted) == 0:
+            return np.full(len(key), -1, dtype=np.int64)
+        q = _row_keys(key)
+        pos = np.minimum(np.searchsorted(self._sorted, q), len(self._sorted) - 1)
+        return np.where(self._sorted[pos] == q, pos, -1)
 
 
 @dataclass
@@ -76,7 +102,7 @@ class State:
     stress: np.ndarray  # (n, 6)
     time: float = 0.0
     step: int = 0
-    memory: dict[tuple[int, ...], ContactMemory] = field(default_factory=dict)
+    memory: ContactMemory = field(default_factory=ContactMemory)
     energies: dict[str, float] = field(default_factory=lambda: {
         "gravity_work": 0.0, "external_work": 0.0, "friction_dissipation": 0.0,
         "numerical_dissipation": 0.0})
@@ -97,6 +123,7 @@ class StepResult:
     iterations: int
     mode_changes: int = 0
     numerical_dissipation: float = 0.0  # J, of the implicit springs in this step
+    broken: np.ndarray | None = None  # (c,) cohesion / tensile strength lost
 
 
 @dataclass
@@ -174,8 +201,8 @@ class Simulation:
         #: largest displacement of any point in one step (paper eq. 50 in spirit)
         self.max_step_displacement = min(c.max_displacement_ratio * self.scale, 0.5 * thin)
         self.search_distance = 2.0 * self.max_step_displacement
-        #: deepest penetration a converged step may leave (m)
-        self.max_penetration_allowed = c.max_penetration_ratio * thin
+        #: block thickness 2 V / A (m); a contact may penetrate a fraction of the thinner one
+        self.thickness = thickness
         self.radius = np.array([
             np.linalg.norm(p.vertices[p.surface_vertex_ids] - p.centroid, axis=1).max()
             for p in self.polys0
@@ -183,6 +210,8 @@ class Simulation:
         self.tan_phi = np.array([np.tan(j.friction_angle_rad) for j in model.joint_materials])
         self.cohesion = np.array([j.cohesion for j in model.joint_materials])
         self.tension = np.array([j.tensile_strength for j in model.joint_materials])
+        #: contact patch areas matter only where joints have cohesion or tensile strength
+        self.needs_areas = bool(np.any(self.cohesion > 0) or np.any(self.tension > 0))
         self.loads_ref = [(ld.block, np.asarray(ld.point, float), np.asarray(ld.force, float))
                           for ld in model.point_loads]
         self.fixed_ref = [(fp.block, np.asarray(fp.point, float)) for fp in model.fixed_points]
@@ -310,22 +339,34 @@ class Simulation:
         vt = vrel - _rows_dot(vrel, n)[:, None] * n
         vt_norm = np.linalg.norm(vt, axis=1)
         tan_phi = self.tan_phi[contacts.joint_material]
-        for k in range(c):
-            mem = s.memory.get(tuple(contacts.key[k]))
-            if mem is not None:
-                mode[k] = mem.mode
-                nk = n[k]
-                shear[k] = mem.shear - (mem.shear @ nk) * nk
-                tangent[k] = mem.tangent - (mem.tangent @ nk) * nk
-                tn = np.linalg.norm(tangent[k])
-                tangent[k] = tangent[k] / tn if tn > 0 else 0.0
-                broken[k] = mem.broken
-                continue
-            if contacts.gap[k] < 0:
-                sliding = vt_norm[k] * dt * self.ks > abs(contacts.gap[k]) * self.kn * tan_phi[k]
-                mode[k] = SLIDING if sliding else LOCKED
-                if vt_norm[k] > 0:
-                    tangent[k] = vt[k] / vt_norm[k]
+        row = s.memory.find(contacts.key)
+        broken[row >= 0] = s.memory.broken[row[row >= 0]]
+        # joints are bonded (cohesion, tensile strength) where blocks touch at the start;
+        # a contact that forms later has only friction
+        if s.step == 0:
+            strength = (self.cohesion[contacts.joint_material] > 0) | (
+                self.tension[contacts.joint_material] > 0)
+            bonded = strength & (contacts.gap <= 1e-9 * self.scale)
+            mode[bonded] = LOCKED
+        else:
+            broken[row < 0] = True
+        # closed contacts found again inherit their mode; the others follow Table 1
+        old = row >= 0
+        old[old] = s.memory.mode[row[old]] != OPEN
+        new = ~old & (contacts.gap < 0) & (mode == OPEN)
+        sliding = vt_norm * dt * self.ks > np.abs(contacts.gap) * self.kn * tan_phi
+        mode[new] = np.where(sliding[new], SLIDING, LOCKED)
+        moving = new & (vt_norm > 0)
+        tangent[moving] = vt[moving] / vt_norm[moving, None]
+        if np.any(old):
+            r, no = row[old], n[old]
+            mode[old] = s.memory.mode[r]
+            sh = s.memory.shear[r]
+            shear[old] = sh - _rows_dot(sh, no)[:, None] * no
+            tg = s.memory.tangent[r]
+            tg = tg - _rows_dot(tg, no)[:, None] * no
+            tn = np.linalg.norm(tg, axis=1)
+            tangent[old] = np.where(tn[:, None] > 0, tg / np.maximum(tn, 1e-300)[:, None], 0.0)
         return mode, shear, tangent, broken
 
     def solve_step(self, contacts: ContactSet, dt: float, areas: np.ndarray) -> StepResult:
@@ -408,6 +449,7 @@ class Simulation:
             allow_tension = np.where(broken, 0.0, tension_force)
             opening = closed & (normal_force < -allow_tension)
             new_mode[opening] = OPEN
+            broken = broken | opening
             still = closed & ~opening
             limit = tan_phi * np.maximum(normal_force, 0.0) + np.where(broken, 0.0,
                                                                        cohesion_force)
@@ -481,7 +523,7 @@ class Simulation:
                     d=d, contacts=_with_modes(contacts, mode, tangent, d1),
                     gap1=d1, shear=np.where(locked[:, None], total_shear, 0.0), slip=dr_t,
                     normal_force=nf, shear_force=sf, friction_work=fw, iterations=it,
-                    mode_changes=mode_changes, numerical_dissipation=num,
+                    mode_changes=mode_changes, numerical_dissipation=num, broken=broken,
                 )
         raise StepFailure(
             f"open-close iteration did not converge ({mode_changes} mode changes, "
@@ -501,6 +543,21 @@ class Simulation:
             r = t @ d[b]
             out += 0.5 * self.kf * float(r @ r)
         return out
+
+    def check_penetration(self, res: StepResult) -> None:
+        """StepFailure if a closed contact penetrates deeper than its allowed share
+        (`max_penetration_ratio`) of the thinner of its two blocks: nothing tunnels."""
+        cs = res.contacts
+        if not len(cs):
+            return
+        limit = self.model.controls.max_penetration_ratio * np.minimum(
+            self.thickness[cs.block_i], self.thickness[cs.block_j])
+        excess = np.where(cs.mode != OPEN, -res.gap1 - limit, -np.inf)
+        k = int(np.argmax(excess))
+        if excess[k] > 0:
+            raise StepFailure(
+                f"penetration {-res.gap1[k]:.3g} m between blocks {cs.block_i[k]} and "
+                f"{cs.block_j[k]} exceeds the limit {limit[k]:.3g} m")
 
     def _tick(self, phase: str, since: float) -> float:
         """Add the wall time since `since` to `phase` of :attr:`timings`; return now."""
@@ -537,16 +594,18 @@ class Simulation:
         s.velocity = self.model.controls.dynamic_ratio * v1
         if self.elastic:
             s.stress = s.stress + np.einsum("nij,nj->ni", self.emat, d[:, 6:])
-        # contact memory for the next step: closed contacts only
-        memory: dict[tuple[int, ...], ContactMemory] = {}
+        # contact memory for the next step: closed contacts, and broken ones (stay broken)
         cs = res.contacts
-        slip_norm = np.linalg.norm(res.slip, axis=1)
-        for k in np.flatnonzero(cs.mode != OPEN):
-            # sliding direction for the next step: this step's slip (paper eq. 7)
-            t = res.slip[k] / slip_norm[k] if slip_norm[k] > 1e-14 * self.scale else cs.tangent[k]
-            memory[tuple(cs.key[k])] = ContactMemory(
-                mode=int(cs.mode[k]), shear=res.shear[k].copy(), tangent=t.copy(),
-                broken=bool(cs.mode[k] == SLIDING))
+        broken = res.broken if res.broken is not None else np.zeros(len(cs), dtype=bool)
+        keep = (cs.mode != OPEN) | broken
+        slip = res.slip[keep]
+        slip_norm = np.linalg.norm(slip, axis=1)
+        # sliding direction for the next step: this step's slip (paper eq. 7)
+        big = slip_norm > 1e-14 * self.scale
+        tangent = np.where(big[:, None], slip / np.maximum(slip_norm, 1e-300)[:, None],
+                           cs.tangent[keep])
+        memory = ContactMemory(key=cs.key[keep], mode=cs.mode[keep], shear=res.shear[keep],
+                               tangent=tangent, broken=broken[keep] | (cs.mode[keep] == SLIDING))
         s.memory = memory
         s.time += dt
         s.step += 1
@@ -560,7 +619,8 @@ class Simulation:
         clock = _time.perf_counter()
         contacts = self.detect()
         clock = self._tick("detection", clock)
-        areas = self.contact_areas(contacts)
+        areas = (self.contact_areas(contacts) if self.needs_areas
+                 else np.zeros(len(contacts)))
         remaining = c.duration - self.state.time
         dt = min(self.dt, remaining) if remaining > 0 else self.dt
         reason = ""
@@ -572,11 +632,7 @@ class Simulation:
                     raise StepFailure(
                         f"largest displacement {disp:.3g} m exceeds the step limit "
                         f"{self.max_step_displacement:.3g} m")
-                pen = float(np.max(-res.gap1[res.contacts.mode != OPEN], initial=0.0))
-                if pen > self.max_penetration_allowed:
-                    raise StepFailure(
-                        f"penetration {pen:.3g} m exceeds the limit "
-                        f"{self.max_penetration_allowed:.3g} m")
+                self.check_penetration(res)
             except StepFailure as exc:
                 reason = str(exc)
                 dt *= DT_CUT

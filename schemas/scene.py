@@ -325,8 +325,8 @@ class AnalysisSpec(_Model):
         0.01, description="largest displacement in a step / model size"
     )
     max_penetration_ratio: Annotated[float, Field(gt=0, le=1)] = Field(
-        0.02, description="deepest contact penetration / thickness of the thinnest block; "
-                          "a deeper step is redone with a smaller time step"
+        0.25, description="deepest contact penetration / thickness of the thinner block "
+                          "in contact; a deeper step is redone with a smaller time step"
     )
     max_open_close_iterations: Annotated[int, Field(ge=1, le=1000)] = 8
     record_contacts: bool = True

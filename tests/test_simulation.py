@@ -306,3 +306,41 @@ def test_energy_is_accounted_for(case: str) -> None:
     if case == "free_fall_settled":
         # the impact's energy went into the integrator's dissipation, not into motion
         assert log.frames[-1].energies["numerical_dissipation"] > 0.9 * work
+
+
+@pytest.mark.parametrize(("cohesion", "holds"), [(12000.0, True), (3000.0, False)])
+def test_cohesion_holds_block_on_incline_until_it_breaks(cohesion: float, holds: bool) -> None:
+    """φ = 20° on 30°, cohesion c on the 1 m² base (a quarter to each corner contact).
+
+    A rigid-plastic bond would hold for c > 4713 Pa; with the bond at four point contacts
+    the up-slope corners (less normal force) fail first, so the static threshold is
+    c > 9352 Pa: c = 12 000 Pa holds (quasi-static), c = 3 000 Pa breaks at once and the
+    block slides on residual friction."""
+    model = incline_model(20.0, duration=0.5, dynamic_ratio=0.0 if holds else 1.0)
+    model.joint_materials = [JointMaterial(np.radians(20.0), cohesion=cohesion)]
+    res = run(model)
+    assert res.status == STATUS_COMPLETED
+    s = np.array(res.summary["blocks"][1]["displacement"]) @ DOWN_DIP
+    if holds:
+        assert abs(s) < 1e-5
+    else:  # breaks at once, then slides on residual friction: ½ a t² with a = 1.812815
+        assert s == pytest.approx(0.5 * 1.812815 * 0.5**2, rel=0.02)
+
+
+@pytest.mark.parametrize(("tension", "holds"), [(60000.0, True), (20000.0, False)])
+def test_tensile_strength_holds_hanging_block(tension: float, holds: bool) -> None:
+    """A 1 m cube glued under a fixed slab hangs while T·A > W = 25 506 N (2 W with the
+    dynamic overshoot of a sudden start); below W it breaks and falls freely."""
+    model = Model(
+        blocks=[Block(box([-1, -1, 1], [2, 2, 2]), "roof", fixed=True),
+                Block(box([0, 0, 0], [1, 1, 1]), "cube")],
+        joint_materials=[JointMaterial(np.radians(30), tensile_strength=tension)],
+        controls=AnalysisControls(duration=0.2, time_step=1e-3, penalty=1e10),
+    )
+    res = run(model)
+    assert res.status == STATUS_COMPLETED
+    dz = res.summary["blocks"][1]["displacement"][2]
+    if holds:
+        assert abs(dz) < 1e-5
+    else:
+        assert dz == pytest.approx(-0.5 * G * 0.2**2, rel=0.02)
