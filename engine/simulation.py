@@ -75,10 +75,11 @@ class ContactMemory:
     shear: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
     tangent: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
     broken: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=bool))
+    gap: np.ndarray = field(default_factory=lambda: np.zeros(0))  # end-of-step gap (m)
 
     def __post_init__(self) -> None:
         order = np.argsort(_row_keys(self.key), kind="stable")
-        for name in ("key", "mode", "shear", "tangent", "broken"):
+        for name in ("key", "mode", "shear", "tangent", "broken", "gap"):
             setattr(self, name, getattr(self, name)[order])
         self._sorted = _row_keys(self.key)
 
@@ -228,6 +229,8 @@ class Simulation:
         )
         self.dt = float(c.time_step)
         self.max_penetration = 0.0
+        #: contacts found already deeply penetrating and relaxed (see plausible_gaps)
+        self.relaxed_contacts = 0
         #: wall time (s) per phase: detection, assembly, solve, open_close, update, output
         self.timings: dict[str, float] = {}
 
@@ -316,6 +319,38 @@ class Simulation:
             kb[b] += self.kf * t.T @ t
             fb[b] -= self.kf * t.T @ (p - p0)
         return kb, fb, mass
+
+    def plausible_gaps(self, contacts: ContactSet) -> int:
+        """Relax contacts that report an implausibly deep penetration; returns how many.
+
+        Blocks end a step with the penetrations of its converged contacts, and the next
+        step starts from those positions: a contact of a block pair cannot start deeper
+        than that pair's deepest penetration at the end of the last step (twice it, plus
+        the rotation update's second-order slack). A deeper one is a detection artefact
+        (features passing each other at a convex edge); a penalty spring started there
+        would inject energy, so its initial gap is limited to the plausible depth.
+        """
+        s = self.state
+        if s.step == 0 or not len(contacts):
+            return 0
+        if not np.any(contacts.gap < 0):
+            return 0
+        mem = s.memory
+        n = self.n
+        slack = 1e-6 * self.scale
+        allowed = np.full(len(contacts), slack)
+        if len(mem.key):
+            pair_keys = mem.key[:, 0] * n + mem.key[:, 2]
+            uniq, inv = np.unique(pair_keys, return_inverse=True)
+            pair_prev = np.zeros(len(uniq))
+            np.maximum.at(pair_prev, inv.ravel(), np.maximum(-mem.gap, 0.0))
+            q = contacts.block_i * n + contacts.block_j
+            pos = np.minimum(np.searchsorted(uniq, q), len(uniq) - 1)
+            found = uniq[pos] == q
+            allowed[found] += 2.0 * pair_prev[pos[found]]
+        bad = contacts.gap < -allowed
+        contacts.gap[bad] = -allowed[bad]
+        return int(bad.sum())
 
     def initial_modes(self, contacts: ContactSet, dt: float) -> tuple[np.ndarray, ...]:
         """Modes, accumulated shear and tangents at the start of the step.
@@ -605,7 +640,8 @@ class Simulation:
         tangent = np.where(big[:, None], slip / np.maximum(slip_norm, 1e-300)[:, None],
                            cs.tangent[keep])
         memory = ContactMemory(key=cs.key[keep], mode=cs.mode[keep], shear=res.shear[keep],
-                               tangent=tangent, broken=broken[keep] | (cs.mode[keep] == SLIDING))
+                               tangent=tangent, broken=broken[keep] | (cs.mode[keep] == SLIDING),
+                               gap=res.gap1[keep])
         s.memory = memory
         s.time += dt
         s.step += 1
@@ -618,6 +654,7 @@ class Simulation:
         c = self.model.controls
         clock = _time.perf_counter()
         contacts = self.detect()
+        self.relaxed_contacts += self.plausible_gaps(contacts)
         clock = self._tick("detection", clock)
         areas = (self.contact_areas(contacts) if self.needs_areas
                  else np.zeros(len(contacts)))
@@ -760,6 +797,7 @@ def run(
         wall = _time.perf_counter() - start
         summary = sim.summary(status, message, wall)
         summary["timings"] = dict(sim.timings)
+        summary["relaxed_contacts"] = sim.relaxed_contacts
         if recorder is not None:
             recorder.end(status, message, summary)
     return RunResult(status, message, sim.state, sim.state.step, wall, sim.max_penetration,

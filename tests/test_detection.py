@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import hashlib
+
 import numpy as np
 import pytest
 from hypothesis import given, settings
@@ -547,3 +549,148 @@ def test_grid_of_boxes_contacts():
              if f}
     assert len(pairs) == 3 * 3 * 1 + 2 * (2 * 3 * 2)
     assert np.allclose(c.gap, 0.0)
+
+
+# --------------------------------------------------------------------------- regression
+
+
+def jittered_boxes(n_side: tuple[int, int, int], seed: int = 0) -> list[Polyhedron]:
+    """Boxes on a 1 m grid, shrunk, shifted and rotated by up to ~1 mm / 1 mrad."""
+    rng = np.random.default_rng(seed)
+    unit = box_vertices((-0.5, -0.5, -0.5), (0.5, 0.5, 0.5))
+    out = []
+    for ix in range(n_side[0]):
+        for iy in range(n_side[1]):
+            for iz in range(n_side[2]):
+                rot = Rotation.from_rotvec(rng.uniform(-1e-3, 1e-3, 3)).as_matrix()
+                v = (unit * (1.0 - rng.uniform(0, 5e-4, 3))) @ rot.T + [ix, iy, iz]
+                out.append(Polyhedron.from_faces(v + rng.uniform(-5e-4, 5e-4, 3), BOX_FACES))
+    return out
+
+
+def regression_scenes() -> list[tuple[str, list[Polyhedron], float]]:
+    """Scenes whose contact sets were recorded from the first (numpy) implementation."""
+    scenes = [(f"random{seed}", random_scene(seed), 0.05) for seed in range(9)]
+    base, wedge = wedge_model()
+    sunk = wedge.moved(wedge.vertices + [0.0, 0.0, -0.01])
+    scenes.append(("l-block, base, sunk wedge", [l_block(), base, sunk], 0.05))
+    scenes.append(("jittered boxes", jittered_boxes((4, 3, 2)), 0.005))
+    rng = np.random.default_rng(5)
+    hulls = [random_convex(rng, [0.55 * i, 0.55 * j, 0.55 * k], 0.5)
+             for i in range(3) for j in range(2) for k in range(2)]
+    scenes.append(("random hulls", hulls, 0.02))
+    return scenes
+
+
+def digest(c: ContactSet) -> tuple:
+    """Count, kinds, hash of the sorted keys, and sums of gaps, normals and candidates."""
+    order = np.lexsort(c.key.T[::-1])
+    key = np.ascontiguousarray(c.key[order])
+    return (len(c), np.bincount(c.kind, minlength=4).tolist(),
+            hashlib.sha1(key.tobytes()).hexdigest()[:16],
+            round(float(np.abs(c.gap).sum()), 9),
+            round(float((c.normal[order] @ [1.0, 2.0, 3.0]) @ np.arange(1, len(c) + 1)), 6),
+            int(c.cand_indptr[-1]))
+
+
+#: digests of :func:`regression_scenes` recorded from the first (numpy) implementation
+#: (one updated for the vertex-face shortest-exit rule, see below)
+RECORDED = dict([
+    ('random0', (2, [2, 0, 0, 0], 'ebb82c29c875fff5', 0.054968315, 3.0, 0)),
+    ('random1', (0, [0, 0, 0, 0], 'da39a3ee5e6b4b0d', 0.0, 0.0, 0)),
+    ('random2', (2, [0, 1, 1, 0], 'ccce8ec9a01a250f', 0.045068201, 4.3892, 2)),
+    ('random3', (1, [1, 0, 0, 0], 'fd698f614464a082', 0.013440465, 3.0, 0)),
+    ('random4', (1, [1, 0, 0, 0], 'fefc58a0461e28b3', 0.042064087, 2.92376, 0)),
+    ('random5', (0, [0, 0, 0, 0], 'da39a3ee5e6b4b0d', 0.0, 0.0, 0)),
+    ('random6', (1, [1, 0, 0, 0], '4de35015b68e8795', 0.032645798, 1.0, 0)),
+    ('random7', (0, [0, 0, 0, 0], 'da39a3ee5e6b4b0d', 0.0, 0.0, 0)),
+    ('random8', (1, [1, 0, 0, 0], '7ca72edf228115a1', 0.007431619, -3.353799, 0)),
+    # the two corner vertices of the sunk wedge on the slope face (y = -4) lie on a face
+    # of the base they are not inside: since the shortest-exit rule for vertex-face
+    # contacts they are vertex-edge contacts, with the same plane, points and gaps
+    ('l-block, base, sunk wedge',
+     (8, [2, 2, 4, 0], 'ef21c1cb51e91c32', 0.048654567, 37.830684, 4)),
+    # 19 corner vertices just outside a neighbour's side face but below its top plane are
+    # not inside it: vertex-edge (shortest exit) instead of vertex-face since that rule
+    ('jittered boxes',
+     (715, [143, 193, 373, 6], '6a7fcc23b0e68338', 0.49788422, 368110.802153, 1427)),
+    ('random hulls', (3, [2, 1, 0, 0], '112dff058a5d8c66', 0.047108353, -2.240597, 0)),
+])
+
+
+@pytest.mark.parametrize("k", range(12))
+def test_matches_recorded_contact_sets(k):
+    name, blocks, search = regression_scenes()[k]
+    assert digest(detect_contacts(blocks, search)) == RECORDED[name]
+
+
+def test_cached_scene_matches_fresh_blocks():
+    """Blocks moved with :meth:`Polyhedron.moved` reuse the cached topology; the result
+    equals that of new blocks with their own topology arrays, and the cache follows a
+    change of topology (same vertex count, other faces)."""
+    blocks = jittered_boxes((2, 2, 2), seed=3)
+    detect_contacts(blocks, 0.005)
+    shift = np.random.default_rng(0).uniform(-1e-3, 1e-3, (len(blocks), 3))
+    moved = [b.moved(b.vertices + d) for b, d in zip(blocks, shift, strict=True)]
+    fresh = [Polyhedron.from_faces(b.vertices.copy(), [f.tolist() for f in b.faces])
+             for b in moved]
+    assert digest(detect_contacts(moved, 0.005)) == digest(detect_contacts(fresh, 0.005))
+    flipped = BOX_FACES[1:] + BOX_FACES[:1]
+    other = [Polyhedron.from_faces(b.vertices, flipped) for b in moved]
+    again = [Polyhedron.from_faces(b.vertices, flipped) for b in moved]
+    assert digest(detect_contacts(other, 0.005)) == digest(detect_contacts(again, 0.005))
+    assert digest(detect_contacts(other, 0.005))[:2] == digest(detect_contacts(moved, 0.005))[:2]
+
+
+#: two blocks of examples/block_system.json as they were at step 236 of a run: a vertex of
+#: the upper block sits where three faces of the lower one meet, below the plane of one
+#: of them but outside the block (the run blew up from this contact before the fix)
+RIDGE_LOWER = (
+    [
+        [7.890230908846536, 10.01680244853255, 1.5061277512170255],
+        [8.46042370286805, 10.009607718788967, 0.00034220327119438565],
+        [8.657822207191595, 8.67792068013616, 3.0042080959625164],
+        [9.99356650953426, 7.893654358086675, 1.5119804792940863],
+        [9.995866913582997, 8.459701313100966, 0.004614717646525435],
+        [10.003105125904426, 10.002361845405206, -4.656603403763171e-06],
+        [10.003855649893554, 10.011357222376416, 2.9998951515598486],
+    ],
+    [[1, 5, 4], [4, 5, 6, 3], [5, 1, 0, 6], [3, 6, 2], [2, 6, 0], [3, 2, 0, 1, 4]],
+)
+RIDGE_UPPER = (
+    [
+        [5.7756865406509466, 9.999327041979361, 7.077997769223109],
+        [6.342522540346598, 10.003172555093967, 5.583942127564249],
+        [7.289870640524377, 7.3811735885124925, 9.991313265158155],
+        [7.390572558353931, 7.280865593116523, 9.991169593598002],
+        [8.666681349613135, 8.672714159778378, 2.994246685728059],
+        [9.900512332517954, 10.002065764263238, 9.997164062544371],
+        [10.010462086067752, 5.781116951565541, 7.071956009318027],
+        [10.009945742002651, 6.350095458295744, 5.578709810002883],
+        [10.001214250347507, 9.901757768867268, 9.997020390984218],
+        [10.003798511886828, 10.015081409720304, 2.9972433442209074],
+        [10.001017219471343, 10.002262620143778, 9.997204628428598],
+    ],
+    [[3, 8, 10, 5, 2],
+     [9, 10, 8, 6, 7],
+     [5, 10, 9, 1, 0],
+     [1, 9, 4],
+     [8, 3, 6],
+     [9, 7, 4],
+     [2, 5, 0],
+     [0, 1, 4, 7, 6, 3, 2]],
+)
+
+
+def test_vertex_beyond_a_convex_edge_is_no_deep_vertex_face_contact():
+    """A vertex outside a convex block but below the plane of one of its faces, whose
+    projection grazes that face's boundary, is not a deep vertex-face penetration: the
+    face it would exit by (shortest exit) is the one it is outside of. Before the rule
+    this pair reported a vertex-face gap of -0.0135 m while touching."""
+    lower = Polyhedron.from_faces(np.array(RIDGE_LOWER[0]), RIDGE_LOWER[1])
+    upper = Polyhedron.from_faces(np.array(RIDGE_UPPER[0]), RIDGE_UPPER[1])
+    assert lower.problems() == [] and upper.problems() == []
+    c = detect_contacts([lower, upper], 0.3185770124393326)
+    check_invariants(c)
+    assert len(c) > 0
+    assert c.gap.min() > -1e-4
