@@ -99,8 +99,10 @@ def test_killed_server_requeues_its_running_job(tmp_path: Path) -> None:
         assert res["summary"]["simulated_time"] == pytest.approx(0.4)
 
 
-def test_many_jobs_finish_and_status_stays_fast(tmp_path: Path) -> None:
-    n_jobs = 20
+@pytest.mark.parametrize("n_jobs", [
+    20, pytest.param(50, marks=[pytest.mark.slow, pytest.mark.ci])])
+def test_many_jobs_finish_and_status_stays_fast(tmp_path: Path, n_jobs: int) -> None:
+    """Jobs submitted at once all finish; status answers stay under 100 ms (p95)."""
     with Server(tmp_path / "data", POLYDDA_CLIENT_QUOTA="100") as srv, \
             httpx.Client(base_url=srv.url, timeout=30) as c:
         def submit(k: int, out: list[str]) -> None:
@@ -116,7 +118,7 @@ def test_many_jobs_finish_and_status_stays_fast(tmp_path: Path) -> None:
             t.join(60)
         assert len(urls) == n_jobs
         latencies = []
-        deadline = time.monotonic() + 120
+        deadline = time.monotonic() + 60 + 6 * n_jobs
         while time.monotonic() < deadline:
             states = []
             for u in urls:

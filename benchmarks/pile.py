@@ -1,0 +1,55 @@
+"""Many-block scenes: the shared piles (../shared/benchmarks/pile_N.json) and a cut rock mass."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+
+from benchmarks import harness as h
+from engine.cutting import cut_blocks, joint_set_planes
+from engine.geometry import dip_normal
+from engine.model import AnalysisControls, Block, JointMaterial, Material, Model
+from engine.shapes import box, convex_hull
+
+#: joint sets of the rock mass, (dip, dip direction) in degrees (as bench_cutting.py)
+JOINT_SETS = [(45.0, 135.0), (45.0, 315.0), (75.0, 45.0)]
+
+
+def pile_path(n: int) -> Path:
+    """Path of the shared pile scene with `n` blocks."""
+    return h.SHARED / "benchmarks" / f"pile_{n}.json"
+
+
+def pile_model(n: int, dt: float = 1e-3, penalty: float = 1e10, duration: float = 1.0,
+               **kw: object) -> Model:
+    """The shared pile: fixed walls first (5 boxes), then the N convex hulls; φ = 30°."""
+    scene = json.loads(pile_path(n).read_text())
+    blocks = []
+    for k, (c, e) in enumerate(scene["walls"]):
+        c, e = np.asarray(c, float), np.asarray(e, float)
+        blocks.append(Block(box(c - e, c + e), f"wall{k}", fixed=True))
+    for k, b in enumerate(scene["bodies"]):
+        pts = np.asarray(b["pos"], float) + np.asarray(b["verts"], float)
+        blocks.append(Block(convex_hull(pts), f"b{k}"))
+    return Model(blocks=blocks, materials=[Material(float(scene["rho"]))],
+                 joint_materials=[JointMaterial(np.radians(30.0))],
+                 controls=AnalysisControls(duration=duration, time_step=dt, penalty=penalty,
+                                           **kw))
+
+
+def rock_mass_model(spacing: float, size: float = 10.0, dt: float = 1e-3,
+                    penalty: float = 1e10, duration: float = 1.0, **kw: object) -> Model:
+    """A `size` m cube cut by three joint sets at `spacing` m, resting on a fixed base
+    slab (blocks touching the base are free too); φ = 30°. Block 0 is the base."""
+    domain = box([0, 0, 0], [size, size, size])
+    joints = []
+    for tag, (dip, ddir) in enumerate(JOINT_SETS):
+        joints += joint_set_planes(dip_normal(dip, ddir), [size / 2] * 3, spacing, domain, tag)
+    pieces = cut_blocks(domain, joints).blocks
+    base = box([-1, -1, -1], [size + 1, size + 1, 0])
+    blocks = [Block(base, "base", fixed=True)] + [Block(p, f"r{k}") for k, p in enumerate(pieces)]
+    return Model(blocks=blocks, joint_materials=[JointMaterial(np.radians(30.0))],
+                 controls=AnalysisControls(duration=duration, time_step=dt, penalty=penalty,
+                                           **kw))

@@ -1,0 +1,50 @@
+"""The benchmark harness on a tiny configuration, so the benchmark code cannot rot."""
+
+from __future__ import annotations
+
+import csv
+from pathlib import Path
+
+from benchmarks.__main__ import main
+from benchmarks.harness import energy_check, growth_exponent, pareto_front
+
+
+def test_incline_benchmark_writes_csv_png_report(tmp_path: Path) -> None:
+    """`--only incline` on two grid points: CSV, PNG and REPORT exist; error < 1 %."""
+    assert main(["--only", "incline", "--dts", "0.02", "0.01", "--penalties", "1e10",
+                 "--out", str(tmp_path)]) == 0
+    with (tmp_path / "accuracy.csv").open() as fh:
+        rows = list(csv.DictReader(fh))
+    assert len(rows) == 2
+    assert all(r["status"] == "completed" for r in rows)
+    assert all(float(r["rel_error"]) < 0.01 for r in rows)
+    assert (tmp_path / "accuracy_incline.png").stat().st_size > 1000
+    report = (tmp_path / "REPORT.md").read_text()
+    assert "accuracy_incline.png" in report
+    assert "## 1. Speed against accuracy" in report
+    assert "python -m benchmarks --only incline" in report
+
+
+def test_pareto_front_and_exponent() -> None:
+    """Dominated points are dropped; the exponent of y = x² is 2."""
+    front = pareto_front([1.0, 2.0, 3.0, 0.5], [1e-2, 1e-3, 1e-2, 1e-1])
+    assert front.tolist() == [3, 0, 1]
+    assert abs(growth_exponent([10, 100, 1000], [1, 100, 10000]) - 2.0) < 1e-12
+
+
+def test_energy_check_flags_growth() -> None:
+    """A run whose kinetic energy rises with no work done shows positive growth."""
+
+    class F:
+        def __init__(self, ke: float) -> None:
+            self.energies = {"kinetic": ke}
+
+    class Log:
+        frames = [F(0.0), F(5.0)]
+
+        def energy(self, key: str):
+            import numpy as np
+
+            return np.array([f.energies.get(key, 0.0) for f in self.frames])
+
+    assert energy_check(Log(), 10.0)["growth"] == 0.5
