@@ -39,6 +39,8 @@ FRICTION_RTOL = 1e-4
 FRICTION_ITERATIONS_PER_CHANGE = 6
 #: locked <-> sliding switches a contact may make in one step before its mode is kept
 MAX_SHEAR_SWITCHES = 2
+#: times a contact may open in one step before it is kept closed for the rest of the step
+MAX_REOPENINGS = 2
 
 
 @dataclass
@@ -417,6 +419,7 @@ class Simulation:
         # locked <-> sliding switches per contact in this step; a contact that switched
         # twice keeps its shear mode for the rest of the step (no flip-flop)
         switches = np.zeros(len(contacts), dtype=np.int64)
+        reopenings = np.zeros(len(contacts), dtype=np.int64)
         bi, bj = contacts.block_i, contacts.block_j
         n = contacts.normal
         d0 = contacts.gap
@@ -483,6 +486,10 @@ class Simulation:
             normal_force = -self.kn * d1
             allow_tension = np.where(broken, 0.0, tension_force)
             opening = closed & (normal_force < -allow_tension)
+            # a contact that opened MAX_REOPENINGS times in this step stays closed (a step
+            # of slight tension instead of endless open-close chatter)
+            opening &= reopenings < MAX_REOPENINGS
+            reopenings += opening
             new_mode[opening] = OPEN
             broken = broken | opening
             still = closed & ~opening
@@ -527,7 +534,9 @@ class Simulation:
             new_fric = np.where(new_mode == SLIDING, tan_phi * self.kn * np.abs(new_dstar),
                                 0.0)[:, None] * new_tangent
             changed = np.any(new_mode != mode)
-            mode_changes += int(changed)
+            # the iteration converges on open / closed (paper 4.3); locked <-> sliding
+            # changes iterate too but are bounded per contact (MAX_SHEAR_SWITCHES)
+            mode_changes += int(np.any((new_mode != OPEN) != (mode != OPEN)))
             clock = self._tick("open_close", clock)
             if mode_changes > max_changes:
                 break
