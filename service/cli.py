@@ -131,10 +131,7 @@ def cmd_blocks(args: argparse.Namespace) -> int:
         print(f"--export: unknown file type '{Path(args.export).suffix}' "
               f"(use {' or '.join(EXPORTERS)})", file=sys.stderr)
         return EXIT_SCENE
-    try:
-        result = _load(args.scene)
-    except SceneError as exc:
-        return _scene_failed(exc)
+    result = _load(args.scene)
     blocks = result.model.blocks
     if args.export is not None:
         out = Path(args.export)
@@ -177,10 +174,7 @@ def cmd_contacts(args: argparse.Namespace) -> int:
     from engine.contacts import KIND_NAMES, MODE_NAMES
     from engine.detection import detect_contacts
 
-    try:
-        result = _load(args.scene)
-    except SceneError as exc:
-        return _scene_failed(exc)
+    result = _load(args.scene)
     model = result.model
     if args.search_distance is not None and not args.search_distance > 0:
         print("--search-distance: must be positive", file=sys.stderr)
@@ -227,10 +221,7 @@ def cmd_schema(args: argparse.Namespace) -> int:
 
 def cmd_validate(args: argparse.Namespace) -> int:
     """Check a scene completely (including cutting and overlaps); print `ok` or the problems."""
-    try:
-        result = _load(args.scene)
-    except SceneError as exc:
-        return _scene_failed(exc)
+    result = _load(args.scene)
     n = len(result.model.blocks)
     print(f"ok: {n} block{'s' if n != 1 else ''}, "
           f"{sum(b.fixed for b in result.model.blocks)} fixed")
@@ -272,10 +263,7 @@ def _named_summary(summary: dict[str, Any], names: list[str]) -> dict[str, Any]:
 
 def cmd_run(args: argparse.Namespace) -> int:
     """Run the scene's simulation; write the HDF5 result and optionally a JSON summary."""
-    try:
-        built = _load(args.scene)
-    except SceneError as exc:
-        return _scene_failed(exc)
+    built = _load(args.scene)
     scene_text = Path(args.scene).read_text(encoding="utf-8")
     out = Path(args.out)
     try:
@@ -327,10 +315,7 @@ def fos_controls(built: BuildResult) -> StrengthReductionControls:
 
 def cmd_fos(args: argparse.Namespace) -> int:
     """Factor of safety by strength reduction (bisection on tan φ / F)."""
-    try:
-        built = _load(args.scene)
-    except SceneError as exc:
-        return _scene_failed(exc)
+    built = _load(args.scene)
 
     def note(r: TrialRun) -> None:
         if not args.quiet:
@@ -485,6 +470,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         return int(exc.code or 0)
     try:
         return int(args.func(args))
+    except SceneError as exc:  # any command that builds a scene: problems, exit 2
+        return _scene_failed(exc)
     except BrokenPipeError:  # output piped into a reader that closed early (`| head`)
         devnull = os.open(os.devnull, os.O_WRONLY)
         os.dup2(devnull, sys.stdout.fileno())
