@@ -786,18 +786,29 @@ def _components(n: int, rows: np.ndarray, cols: np.ndarray) -> np.ndarray:
     return connected_components(graph, directed=False)[1]
 
 
-def _groups(
-    fac: _Facets, real: np.ndarray, n_cells: int, sliver: float, warnings: list[str]
-) -> tuple[np.ndarray, np.ndarray]:
-    """Union cells across fictitious facets; sliver blocks join their largest neighbour.
-
-    Returns `(c,) int` group per cell and `(c,) bool` cells dropped (isolated slivers).
-    """
+def _glued(
+    fac: _Facets, real: np.ndarray, n_cells: int
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Cells joined across fictitious facets (no real joint between them): `(c,) int`
+    group per cell, and the cell pairs `(k,)`, `(k,)` that were joined."""
     glue = (fac.other > np.arange(len(fac.other))) & ~real
     rows, cols = fac.cell[glue], fac.cell[fac.other[glue]]
-    group = _components(n_cells, rows, cols)
+    return _components(n_cells, rows, cols), rows, cols
+
+
+def _groups(
+    fac: _Facets, real: np.ndarray, n_cells: int, sliver: float, merge_below: float,
+    warnings: list[str],
+) -> tuple[np.ndarray, np.ndarray]:
+    """Union cells across fictitious facets; blocks smaller than `merge_below` (m³) join
+    the neighbour they share the largest face with.
+
+    Returns `(c,) int` group per cell and `(c,) bool` cells dropped (isolated slivers
+    below `sliver` m³).
+    """
+    group, rows, cols = _glued(fac, real, n_cells)
     gvol = np.bincount(group, weights=fac.cell_volume)
-    small = gvol < sliver
+    small = gvol < max(sliver, merge_below)
     dropped = np.zeros(n_cells, dtype=bool)
     if not small.any():
         return group, dropped
@@ -807,9 +818,10 @@ def _groups(
     order = cand[np.lexsort((-fac.area[cand], g_own[cand]))]
     _, first = np.unique(g_own[order], return_index=True)
     best = order[first]
-    dropped = small[group] & ~np.isin(group, g_own[best])
+    dropped = (gvol < sliver)[group] & ~np.isin(group, g_own[best])
     if len(best):
-        warnings.append(f"{len(best)} sliver block(s) merged into a neighbour block")
+        warnings.append(f"{len(best)} small block(s) below {max(sliver, merge_below):.3g} m³ "
+                        "merged into a neighbour block")
     if dropped.any():
         warnings.append(f"{len(np.unique(group[dropped]))} isolated sliver block(s) dropped")
     rows = np.concatenate([rows, fac.cell[best]])
@@ -871,13 +883,22 @@ def _idle_joint_warnings(joints: Sequence[JointPlane], separating: set[int]) -> 
     return out
 
 
+#: default smallest block, as a fraction of the median block volume of the cut
+MIN_BLOCK_VOLUME_RATIO = 1e-3
+
+
 def cut_blocks(
-    domain: Polyhedron, joints: Sequence[JointPlane], tol: Tolerances = DEFAULT_TOLERANCES
+    domain: Polyhedron, joints: Sequence[JointPlane], tol: Tolerances = DEFAULT_TOLERANCES,
+    min_block_volume: float | None = None,
 ) -> CutResult:
     """Cut `domain` into blocks by `joints` (persistent or bounded by an extent polygon).
 
     Faces carry the tag of the joint they lie on, or FACE_TAG_BOUNDARY on the domain
-    surface; concave blocks carry their convex pieces (the arrangement cells).
+    surface; concave blocks carry their convex pieces (the arrangement cells). Blocks
+    smaller than `min_block_volume` m³ (default MIN_BLOCK_VOLUME_RATIO of the median
+    block volume; 0 keeps all but numerical slivers) merge into the neighbour they share
+    the largest face with: corner slivers weigh nothing, and their tiny inertia would force
+    the time step down to microseconds.
     """
     warnings: list[str] = []
     scale = float(np.ptp(domain.vertices[domain.surface_vertex_ids], axis=0).max())
@@ -897,7 +918,10 @@ def cut_blocks(
     tag_of_pair = np.where(real, np.array([j.tag for j in jlist] + [-1])[owner], -1)
     vol_dom = abs(domain.volume)
     sliver = tol.sliver_volume * vol_dom
-    group, dropped = _groups(fac, real, len(cells), sliver, warnings)
+    if min_block_volume is None:
+        vols = np.bincount(_glued(fac, real, len(cells))[0], weights=fac.cell_volume)
+        min_block_volume = MIN_BLOCK_VOLUME_RATIO * float(np.median(vols[vols > 0]))
+    group, dropped = _groups(fac, real, len(cells), sliver, min_block_volume, warnings)
     cell_facets: list[list[int]] = [[] for _ in cells]
     for f, c in enumerate(fac.cell.tolist()):
         cell_facets[c].append(f)

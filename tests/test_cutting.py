@@ -184,6 +184,31 @@ def test_cube_cut_by_three_sets_conserves_volume_without_overlap() -> None:
     assert tags == {FACE_TAG_BOUNDARY, 0, 1, 2}
 
 
+def test_small_corner_blocks_merge_into_neighbours() -> None:
+    """Three oblique sets leave corner slivers (~1e-5 m³ beside ~30 m³ blocks): by default
+    blocks under 1/1000 of the median volume join a neighbour; volume is conserved."""
+    domain = box((0, 0, 0), (10, 10, 10))
+    joints = []
+    for tag, (dip, ddir) in enumerate([(45, 135), (45, 315), (75, 45)]):
+        joints += joint_set_planes(dip_normal(dip, ddir), [5.0, 5.0, 5.0], 3.4, domain, tag)
+    every = cut_blocks(domain, joints, min_block_volume=0.0)
+    merged = cut_blocks(domain, joints)
+    check_cut(domain, every)
+    check_cut(domain, merged)
+    v_every = np.array([b.volume for b in every.blocks])
+    v_merged = np.array([b.volume for b in merged.blocks])
+    assert v_every.min() < 1e-4
+    assert v_merged.min() >= 1e-3 * np.median(v_every)
+    assert len(merged.blocks) < len(every.blocks)
+    assert v_merged.sum() == pytest.approx(1000.0, rel=1e-9)
+    assert any("merged into a neighbour" in w for w in merged.warnings)
+    # an explicit threshold merges more
+    coarse = cut_blocks(domain, joints, min_block_volume=1.0)
+    check_cut(domain, coarse)
+    assert min(b.volume for b in coarse.blocks) >= 1.0
+    assert len(coarse.blocks) < len(merged.blocks)
+
+
 def test_orthogonal_sets_give_identical_boxes() -> None:
     domain = box((0, 0, 0), (8, 6, 4))
     joints = joint_set_planes([1, 0, 0], [0, 0, 0], 2.0, domain, 0)
