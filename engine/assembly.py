@@ -1,15 +1,17 @@
 """Shi's block terms and the penalty contact terms of the global system `K D = F`.
 
-Everything is vectorised over blocks or contacts and returned as COO triplets
-(rows, cols, values) that the solver converts to CSR once per open-close cycle.
-Each block has 12 local columns `(u, v, w, rx, ry, rz, εx, εy, εz, γyz, γzx, γxy)`;
-`dof_map (n, 12) int` gives the global unknown of each column, -1 where the column is
-not an unknown (rigid blocks use 6, fixed blocks none).
+Everything is vectorised over blocks or contacts. Each block has 12 local columns
+`(u, v, w, rx, ry, rz, εx, εy, εz, γyz, γzx, γxy)`; rigid blocks use the first 6, fixed
+blocks none. `dof_map (n, 12) int` gives the global unknown of each column, -1 where the
+column is not an unknown. The global K is assembled block-sparse (:func:`block_system`):
+contact terms are first summed per block and per block pair, so its size follows the
+blocks and pairs in contact, not the number of contact points.
 """
 
 from __future__ import annotations
 
 import numpy as np
+import scipy.sparse as sp
 
 # T(x) = T0 + x_t Tx + y_t Ty + z_t Tz (THEORY.md, paper eq. 11)
 _T0 = np.zeros((3, 12))
@@ -67,51 +69,60 @@ def elastic_matrix(young_modulus: float, poisson_ratio: float) -> np.ndarray:
     return d
 
 
-def block_triplets(
-    dof_map: np.ndarray, blocks_k: np.ndarray
-) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """COO triplets of block-diagonal terms `blocks_k (n, 12, 12)` mapped by `dof_map`."""
-    rows = np.broadcast_to(dof_map[:, :, None], blocks_k.shape)
-    cols = np.broadcast_to(dof_map[:, None, :], blocks_k.shape)
-    keep = (rows >= 0) & (cols >= 0)
-    return rows[keep], cols[keep], blocks_k[keep]
+def scatter_vector(dof_map: np.ndarray, block: np.ndarray, values: np.ndarray,
+                   n: int) -> np.ndarray:
+    """Global vector `(n,)` from per-block 12-vectors `values (p, 12)` of blocks `block (p,)`."""
+    idx = dof_map[block]
+    keep = idx >= 0
+    return np.bincount(idx[keep], weights=values[keep], minlength=n)
 
 
-def pair_triplets(
-    dof_map: np.ndarray,
+def sum_by_index(index: np.ndarray, values: np.ndarray, n: int) -> np.ndarray:
+    """Sum rows of `values (c, ...)` into `(n, ...)` by `index (c,) int`; rows with a
+    negative index are skipped (a sparse incidence product: fast for many rows)."""
+    keep = index >= 0
+    flat = values.reshape(len(values), int(np.prod(values.shape[1:])))[keep]
+    inc = sp.csr_matrix((np.ones(int(keep.sum())), (index[keep], np.arange(len(flat)))),
+                        shape=(n, len(flat)))
+    return np.asarray(inc @ flat).reshape((n, *values.shape[1:]))
+
+
+def block_system(
+    row_of: np.ndarray,
+    diag: np.ndarray,
     bi: np.ndarray,
     bj: np.ndarray,
     kii: np.ndarray,
     kij: np.ndarray,
     kjj: np.ndarray,
-) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """COO triplets of contact terms between blocks `bi`, `bj` `(c,)` with `(c,12,12)` parts."""
-    di, dj = dof_map[bi], dof_map[bj]
-    parts = [
-        (di, di, kii),
-        (di, dj, kij),
-        (dj, di, np.transpose(kij, (0, 2, 1))),
-        (dj, dj, kjj),
-    ]
-    rows, cols, vals = [], [], []
-    for a, b, k in parts:
-        r = np.broadcast_to(a[:, :, None], k.shape)
-        c = np.broadcast_to(b[:, None, :], k.shape)
-        keep = (r >= 0) & (c >= 0) & (k != 0)
-        rows.append(r[keep])
-        cols.append(c[keep])
-        vals.append(k[keep])
-    return np.concatenate(rows), np.concatenate(cols), np.concatenate(vals)
+) -> tuple[sp.bsr_matrix, np.ndarray]:
+    """Global K as a block-sparse matrix of `d × d` blocks, one block row per free block.
 
-
-def scatter_vector(dof_map: np.ndarray, block: np.ndarray, values: np.ndarray,
-                   n: int) -> np.ndarray:
-    """Global vector `(n,)` from per-block 12-vectors `values (p, 12)` of blocks `block (p,)`."""
-    out = np.zeros(n)
-    idx = dof_map[block]
-    keep = idx >= 0
-    np.add.at(out, idx[keep], values[keep])
-    return out
+    `row_of (n,) int` is each block's block row (-1 for fixed blocks, rows in block
+    order), `diag (n, d, d)` the block terms, `bi`, `bj (c,)` the blocks of each contact
+    and `kii`, `kij`, `kjj (c, d, d)` its terms. Returns K and its diagonal blocks
+    `(m, d, d)` (the block-Jacobi preconditioner needs them).
+    """
+    d = diag.shape[1]
+    m = int(row_of.max(initial=-1)) + 1
+    fi, fj = row_of[bi], row_of[bj]
+    dblk = diag[row_of >= 0] + sum_by_index(fi, kii, m) + sum_by_index(fj, kjj, m)
+    both = (fi >= 0) & (fj >= 0)
+    a, b, kab = fi[both], fj[both], kij[both]
+    # one off-diagonal block per pair: contacts of a pair listed as (j, i) are transposed
+    swap = a > b
+    kab = np.where(swap[:, None, None], np.transpose(kab, (0, 2, 1)), kab)
+    a, b = np.where(swap, b, a), np.where(swap, a, b)
+    pairs, inv = np.unique(a * m + b, return_inverse=True)
+    off = sum_by_index(inv.ravel(), kab, len(pairs))
+    pa, pb = pairs // m, pairs % m
+    rows = np.concatenate([np.arange(m), pa, pb])
+    cols = np.concatenate([np.arange(m), pb, pa])
+    data = np.concatenate([dblk, off, np.transpose(off, (0, 2, 1))])
+    order = np.lexsort((cols, rows))
+    indptr = np.concatenate([[0], np.cumsum(np.bincount(rows, minlength=m))])
+    k = sp.bsr_matrix((data[order], cols[order], indptr), shape=(m * d, m * d))
+    return k, dblk
 
 
 def contact_stiffness(

@@ -320,17 +320,26 @@ def _scene(blocks: Sequence[Polyhedron]) -> _Scene:
 
 def detect_contacts(blocks: Sequence[Polyhedron], search_distance: float,
                     active: np.ndarray | None = None,
-                    tol: Tolerances = DEFAULT_TOLERANCES) -> ContactSet:
+                    tol: Tolerances = DEFAULT_TOLERANCES,
+                    vertices: np.ndarray | None = None) -> ContactSet:
     """All generalized contact constraints between blocks within `search_distance` (m).
 
     Penetrating contacts (gap down to about -2 x search) are kept. `active (n,) bool`:
     pairs of two inactive (fixed) blocks are skipped. `block_i > block_j`, normal from j
     into i, key = (block i, feature i, block j, feature j) with :func:`feature_code`.
+    `vertices (V, 3)`: current positions of all blocks' vertices stacked in block order
+    (default: the blocks' own), so a caller can move blocks without new polyhedra.
     """
     if len(blocks) < 2:
         return ContactSet()
     s = _scene(blocks)
-    x = np.concatenate([b.vertices for b in blocks]).astype(float, copy=False)
+    if vertices is None:
+        x = np.concatenate([b.vertices for b in blocks]).astype(float, copy=False)
+    else:
+        x = np.ascontiguousarray(vertices, dtype=float)
+        if x.shape != (sum(len(b.vertices) for b in blocks), 3):
+            raise ValueError(f"vertices has shape {x.shape}, expected one row per block "
+                             "vertex")
     scale0 = float(np.ptp(x, axis=0).max())
     search = float(search_distance)
     snap = tol.length("feature_snap", scale0)

@@ -88,7 +88,10 @@ class AnalysisControls:
     of the model size (paper eq. 50 uses a fraction of the smallest edge instead);
     `max_penetration_ratio` limits a contact's penetration to this fraction of the
     thickness (2 V / A) of the thinner of its blocks: a deeper step is redone with a
-    smaller Δt, so nothing tunnels.
+    smaller Δt, so nothing tunnels. `open_close_tolerance` is the open-close
+    iteration's hysteresis as a fraction of the step displacement limit: an open contact
+    closes only when it penetrates deeper, so contacts that merely graze do not flip
+    forever (any tension still opens a closed contact).
     """
 
     duration: float = 1.0
@@ -100,7 +103,8 @@ class AnalysisControls:
     block_model: Literal["rigid", "elastic"] = "rigid"
     max_displacement_ratio: float = 0.01
     max_penetration_ratio: float = 0.25
-    max_open_close_iterations: int = 8
+    max_open_close_iterations: int = 20
+    open_close_tolerance: float = 1e-4
     min_time_step: float = 1e-7
     fixed_point_penalty: float | None = None
     record_contacts: bool = True

@@ -24,7 +24,8 @@ from engine.detection import detect_contacts
 from engine.frame import Frame, Recorder
 from engine.geometry import Polyhedron, rotation_matrix
 from engine.model import Model
-from engine.solver import SolveError, assemble, make_solver
+from engine.solver import SolveError, make_solver
+from engine.tolerances import DEFAULT_TOLERANCES
 
 STATUS_COMPLETED = "completed"
 STATUS_FAILED = "failed"
@@ -175,6 +176,11 @@ class Simulation:
         self.polys0 = [b.polyhedron for b in blocks]
         self.points0 = [p.vertices.copy() for p in self.polys0]
         self.c0 = np.array([p.centroid for p in self.polys0]).reshape(n, 3)
+        #: all vertices stacked `(V, 3)` relative to their block centroid, and their block
+        counts = [len(p) for p in self.points0]
+        self._vertex_block = np.repeat(np.arange(n), counts)
+        self._vertex_rel0 = (np.concatenate(self.points0) - self.c0[self._vertex_block]
+                             if n else np.zeros((0, 3)))
         self.volume0 = np.array([p.volume for p in self.polys0])
         self.second0 = np.array([p.second_moments for p in self.polys0]).reshape(n, 3, 3)
         self.density = np.array([model.materials[b.material].density for b in blocks])
@@ -189,6 +195,9 @@ class Simulation:
                 k += ndof
         self.dof_map = dof_map
         self.n_unknowns = k
+        #: unknowns per free block, and each block's block row in K (-1 when fixed)
+        self.ndof = ndof
+        self.block_row = np.where(self.fixed, -1, dof_map[:, 0] // ndof)
         self.emat = np.array([
             asm.elastic_matrix(model.materials[b.material].young_modulus,
                                model.materials[b.material].poisson_ratio) for b in blocks
@@ -204,6 +213,9 @@ class Simulation:
         #: largest displacement of any point in one step (paper eq. 50 in spirit)
         self.max_step_displacement = min(c.max_displacement_ratio * self.scale, 0.5 * thin)
         self.search_distance = 2.0 * self.max_step_displacement
+        #: open-close hysteresis (m): the depth an open contact must penetrate to close
+        #: (any tension opens a closed one: a threshold there would act as a bond)
+        self.open_close_gap = c.open_close_tolerance * self.max_step_displacement
         #: block thickness 2 V / A (m); a contact may penetrate a fraction of the thinner one
         self.thickness = thickness
         self.radius = np.array([
@@ -247,6 +259,11 @@ class Simulation:
         s = self.state
         return s.centroid[b] + s.affine[b] @ (point0 - self.c0[b])
 
+    def current_vertices(self) -> np.ndarray:
+        """Current positions `(V, 3)` of all blocks' vertices, stacked in block order."""
+        s, vb = self.state, self._vertex_block
+        return s.centroid[vb] + np.einsum("vij,vj->vi", s.affine[vb], self._vertex_rel0)
+
     def current_polyhedra(self) -> list[Polyhedron]:
         return [p.moved(self.current_points(b)) for b, p in enumerate(self.polys0)]
 
@@ -261,8 +278,8 @@ class Simulation:
     # ------------------------------------------------------------------ contacts
     def detect(self) -> ContactSet:
         """Contacts at the start of the step with joint materials and patch areas."""
-        polys = self.current_polyhedra()
-        contacts = detect_contacts(polys, self.search_distance, active=~self.fixed)
+        contacts = detect_contacts(self.polys0, self.search_distance, active=~self.fixed,
+                                   vertices=self.current_vertices())
         m = self.model
         assign_joint_materials(contacts, m.default_joint_material, m.joint_material_of_tag,
                                m.pair_joint_material)
@@ -387,10 +404,14 @@ class Simulation:
             mode[bonded] = LOCKED
         else:
             broken[row < 0] = True
-        # closed contacts found again inherit their mode; the others follow Table 1
+        # closed contacts found again inherit their mode; the others follow Table 1,
+        # where blocks that already touch (cut blocks, stacked blocks) start closed so a
+        # resting mass carries its weight from the first cycle instead of closing one
+        # layer of contacts per open-close iteration
         old = row >= 0
         old[old] = s.memory.mode[row[old]] != OPEN
-        new = ~old & (contacts.gap < 0) & (mode == OPEN)
+        touch = DEFAULT_TOLERANCES.length("touching", self.scale)
+        new = ~old & (contacts.gap <= touch) & (mode == OPEN)
         sliding = vt_norm * dt * self.ks > np.abs(contacts.gap) * self.kn * tan_phi
         mode[new] = np.where(sliding[new], SLIDING, LOCKED)
         moving = new & (vt_norm > 0)
@@ -412,7 +433,8 @@ class Simulation:
         clock = _time.perf_counter()
         kb, fb, _ = self.block_terms(dt)
         nu = self.n_unknowns
-        rows_b, cols_b, vals_b = asm.block_triplets(self.dof_map, kb)
+        nd = self.ndof
+        kb = kb[:, :nd, :nd]
         f_block = asm.scatter_vector(self.dof_map, np.arange(self.n), fb, nu)
         c = len(contacts)
         mode, shear0, tangent, broken = self.initial_modes(contacts, dt)
@@ -445,15 +467,15 @@ class Simulation:
             key = (closed.tobytes(), locked.tobytes())
             ra = shear0 + offset
             if solver is None or key != solver_key:
-                kn_c = self.kn * closed.astype(float)
-                ks_c = self.ks * locked.astype(float)
-                kii, kij, kjj = asm.contact_stiffness(ti, tj, n, kn_c, ks_c)
-                r, cc, v = asm.pair_triplets(self.dof_map, bi, bj, kii, kij, kjj)
-                k = assemble(nu, np.concatenate([rows_b, r]), np.concatenate([cols_b, cc]),
-                             np.concatenate([vals_b, v]))
+                sel = np.flatnonzero(closed)
+                kii, kij, kjj = asm.contact_stiffness(
+                    ti[sel, :, :nd], tj[sel, :, :nd], n[sel], np.full(len(sel), self.kn),
+                    self.ks * locked[sel].astype(float))
+                k, kdiag = asm.block_system(self.block_row, kb, bi[sel], bj[sel],
+                                            kii, kij, kjj)
                 clock = self._tick("assembly", clock)
                 try:
-                    solver = make_solver(k)
+                    solver = make_solver(k, nd, kdiag)
                 except SolveError as exc:
                     raise StepFailure(str(exc)) from exc
                 solver_key = key
@@ -514,7 +536,7 @@ class Simulation:
             offset[relock] = (fric_mag[relock, None] / self.ks * tangent[relock]
                               - dr_t[relock] - shear0[relock])
             # open contacts that penetrate close (first entrance, revised point eq. 42-47)
-            closing = ~closed & (d1 < 0)
+            closing = ~closed & (d1 < -self.open_close_gap)
             if np.any(closing):
                 tstar = np.where(d0[closing] > 0,
                                  d0[closing] / (d0[closing] - d1[closing]), 0.0)

@@ -24,11 +24,6 @@ class SolveError(RuntimeError):
     """The linear system could not be solved (singular or not converged)."""
 
 
-def assemble(n: int, rows: np.ndarray, cols: np.ndarray, vals: np.ndarray) -> sp.csc_matrix:
-    """COO triplets -> one sparse matrix `(n, n)` (duplicates summed), converted once."""
-    return sp.coo_matrix((vals, (rows, cols)), shape=(n, n)).tocsc()
-
-
 def _block_jacobi(k: sp.csc_matrix, block: int) -> spla.LinearOperator:
     """Inverse of the `block`×`block` diagonal blocks of K as a preconditioner."""
     n = k.shape[0]
@@ -38,6 +33,13 @@ def _block_jacobi(k: sp.csc_matrix, block: int) -> spla.LinearOperator:
     for a in range(block):
         for b in range(block):
             diag[:, a, b] = kc[np.arange(a, n, block), np.arange(b, n, block)].A1
+    return _inverse_blocks(diag)
+
+
+def _inverse_blocks(diag: np.ndarray) -> spla.LinearOperator:
+    """Block-diagonal inverse of `diag (nb, b, b)` as a linear operator."""
+    nb, block, _ = diag.shape
+    n = nb * block
     inv = np.linalg.inv(diag)
 
     def apply(x: np.ndarray) -> np.ndarray:
@@ -46,19 +48,21 @@ def _block_jacobi(k: sp.csc_matrix, block: int) -> spla.LinearOperator:
     return spla.LinearOperator((n, n), matvec=apply, dtype=float)
 
 
-def make_solver(k: sp.csc_matrix, block: int = 6) -> Callable[[np.ndarray, np.ndarray | None],
-                                                                   np.ndarray]:
+def make_solver(
+    k: sp.spmatrix, block: int = 6, diag_blocks: np.ndarray | None = None
+) -> Callable[[np.ndarray, np.ndarray | None], np.ndarray]:
     """A function `solve(F, x0) -> D` for this K, factorized or CG by size.
 
     The factorization (or preconditioner) is built once and reused for every
-    right-hand side of the open-close iteration that keeps the same K.
+    right-hand side of the open-close iteration that keeps the same K. `diag_blocks
+    (n / block, block, block)`, when given, are K's diagonal blocks (saves extracting them).
     """
     n = k.shape[0]
     if n == 0:
         return lambda f, x0=None: np.zeros(0)
     if n <= DIRECT_SOLVE_MAX_UNKNOWNS or n % block:
         try:
-            lu = spla.splu(k)
+            lu = spla.splu(sp.csc_matrix(k))
         except RuntimeError as exc:  # exactly singular
             raise SolveError(f"singular system: {exc}") from exc
 
@@ -69,7 +73,10 @@ def make_solver(k: sp.csc_matrix, block: int = 6) -> Callable[[np.ndarray, np.nd
             return x
 
         return direct
-    pre = _block_jacobi(k, block)
+    if diag_blocks is not None and diag_blocks.shape == (n // block, block, block):
+        pre = _inverse_blocks(diag_blocks)
+    else:
+        pre = _block_jacobi(sp.csc_matrix(k), block)
 
     def cg(f: np.ndarray, x0: np.ndarray | None = None) -> np.ndarray:
         x, info = spla.cg(k, f, x0=x0, rtol=CG_RTOL, atol=0.0, M=pre, maxiter=10 * n)

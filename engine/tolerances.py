@@ -25,6 +25,8 @@ class Tolerances:
     parallel: float = 1e-9
     #: contact features closer than this (relative) to an edge end are at the end (v-v / v-e)
     feature_snap: float = 1e-6
+    #: a new contact whose gap is below this (relative) touches and starts closed
+    touching: float = 1e-9
 
     def length(self, name: str, scale: float) -> float:
         """Absolute length tolerance `name` for a model of size `scale` (m)."""

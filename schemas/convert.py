@@ -198,7 +198,7 @@ def _cut_domain(scene: Scene, p: Problems, warnings: list[str]) -> list[Polyhedr
         return []
     from engine.cutting import cut_blocks
 
-    result = cut_blocks(domain, planes)
+    result = cut_blocks(domain, planes, min_block_volume=d.min_block_volume)
     for w in result.warnings:
         if w not in warnings:
             warnings.append(w)
@@ -541,6 +541,7 @@ def build_model(scene: Scene | str | Path | dict[str, Any]) -> BuildResult:
         max_displacement_ratio=a.max_displacement_ratio,
         max_penetration_ratio=a.max_penetration_ratio,
         max_open_close_iterations=a.max_open_close_iterations,
+        open_close_tolerance=a.open_close_tolerance,
         min_time_step=a.min_time_step,
         fixed_point_penalty=a.fixed_point_penalty,
         record_contacts=a.record_contacts,

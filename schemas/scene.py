@@ -149,6 +149,11 @@ class DomainSpec(_Model):
     polyhedron: PolyhedronSpec | None = None
     material: Name | None = Field(None, description="material name (default material if omitted)")
     name_prefix: Name = "B"
+    min_block_volume: NonNegative | None = Field(
+        None, description="m³; smaller cut blocks merge into the neighbour they share the "
+                          "largest face with (default: 1/1000 of the median block volume; "
+                          "0 keeps every block)"
+    )
 
     @model_validator(mode="after")
     def _one_shape(self) -> DomainSpec:
@@ -328,7 +333,15 @@ class AnalysisSpec(_Model):
         0.25, description="deepest contact penetration / thickness of the thinner block "
                           "in contact; a deeper step is redone with a smaller time step"
     )
-    max_open_close_iterations: Annotated[int, Field(ge=1, le=1000)] = 8
+    max_open_close_iterations: Annotated[int, Field(ge=1, le=1000)] = Field(
+        20, description="open-close iterations that may change a contact between open and "
+                        "closed before the step is redone with a smaller time step"
+    )
+    open_close_tolerance: Annotated[float, Field(ge=0, le=0.1)] = Field(
+        1e-4, description="open-close hysteresis / largest displacement in a step: an open "
+                          "contact closes only when it penetrates deeper than this (any "
+                          "tension opens a closed one)"
+    )
     record_contacts: bool = True
     factor_of_safety: FactorOfSafetySpec | None = None
 

@@ -103,12 +103,14 @@ def test_modes_and_controls(cube_on_base: dict) -> None:
                                 "penalty": 3e11, "shear_penalty_ratio": 0.5,
                                 "record_interval": 4, "block_model": "elastic",
                                 "max_displacement_ratio": 0.005,
-                                "max_open_close_iterations": 12, "record_contacts": False}
+                                "max_open_close_iterations": 12, "record_contacts": False,
+                                "open_close_tolerance": 1e-3}
     c = build_model(cube_on_base).model.controls
     assert c.dynamic_ratio == 0.0
     assert (c.duration, c.time_step, c.penalty, c.shear_penalty_ratio) == (2, 5e-4, 3e11, 0.5)
     assert (c.record_interval, c.block_model, c.max_displacement_ratio) == (4, "elastic", 0.005)
     assert (c.max_open_close_iterations, c.record_contacts) == (12, False)
+    assert c.open_close_tolerance == 1e-3
     cube_on_base["analysis"] = {"dynamic_ratio": 0.9}
     assert build_model(cube_on_base).model.controls.dynamic_ratio == 0.9
 
@@ -157,6 +159,22 @@ def test_joint_tags_map_to_joint_materials() -> None:
     assert result.model.joint_material_of_tag == {0: 0, 1: 1}
     assert result.joint_names == ["A", "B"]
     assert [round(b.polyhedron.volume, 12) for b in result.model.blocks] == [1.0, 2.0, 1.0]
+
+
+def test_min_block_volume_merges_small_cut_blocks() -> None:
+    """A joint 0.2 mm below the top of a 1 m cube leaves a 2e-4 m³ slab: kept when
+    asked (0), merged into the block below by default, never a field error."""
+    scene = {"domain": {"box": {"min": [0, 0, 0], "max": [1, 1, 1]}},
+             "joints": [{"dip": 0, "dip_direction": 0, "point": [0, 0, 0.9998]},
+                        {"dip": 0, "dip_direction": 0, "point": [0, 0, 0.5]}]}
+    assert [round(b.polyhedron.volume, 9) for b in build_model(scene).model.blocks] == [
+        0.5, 0.5]
+    scene["domain"]["min_block_volume"] = 0
+    assert [round(b.polyhedron.volume, 9) for b in build_model(scene).model.blocks] == [
+        0.5, 0.4998, 0.0002]
+    scene["domain"]["min_block_volume"] = -1
+    with pytest.raises(SceneError, match="domain.min_block_volume"):
+        build_model(scene)
 
 
 def test_cut_blocks_are_named_by_centroid_z_then_y_then_x() -> None:
