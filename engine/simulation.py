@@ -245,6 +245,9 @@ class Simulation:
             stress=np.zeros((n, 6)),
         )
         self.dt = float(c.time_step)
+        #: the last accepted step and its time step
+        self.last: StepResult | None = None
+        self.last_dt = self.dt
         self.max_penetration = 0.0
         #: contacts found already deeply penetrating and relaxed (see plausible_gaps)
         self.relaxed_contacts = 0
@@ -370,6 +373,16 @@ class Simulation:
             pos = np.minimum(np.searchsorted(uniq, q), len(uniq) - 1)
             found = uniq[pos] == q
             allowed[found] += 2.0 * pair_prev[pos[found]]
+            # a contact found again starts no deeper than it ended (plus the exact rotation's
+            # second-order shift of its points): where re-detection picks a different plane
+            # (vertex-vertex, vertex-edge) the spring must not start with more energy
+            row = mem.find(contacts.key)
+            again = row >= 0
+            if np.any(again) and self.last is not None:
+                turn = np.linalg.norm(self.last.d[:, 3:6], axis=1) ** 2 * self.radius
+                second = 0.5 * (turn[contacts.block_i] + turn[contacts.block_j])
+                own = slack + second + np.maximum(-mem.gap[row], 0.0)
+                allowed[again] = np.minimum(allowed[again], own[again])
         bad = contacts.gap < -allowed
         contacts.gap[bad] = -allowed[bad]
         return int(bad.sum())
@@ -574,6 +587,14 @@ class Simulation:
             settled = fric_change <= FRICTION_RTOL or (
                 steady >= FRICTION_ITERATIONS_PER_CHANGE and fric_change <= FRICTION_RTOL_STALLED)
             if not changed and (settled or not np.any(sliding)):
+                # contacts kept closed by the reopening cap must not end pulling the blocks
+                # together: that would be a bond the joint does not have
+                held = (mode != OPEN) & (reopenings >= MAX_REOPENINGS) & (
+                    -self.kn * d1 < -allow_tension - self.kn * self.open_close_gap)
+                if np.any(held):
+                    raise StepFailure(
+                        f"open-close iteration did not settle: {int(held.sum())} contact(s) "
+                        "kept closing and opening")
                 closed = mode != OPEN
                 locked = mode == LOCKED
                 ra = shear0 + offset

@@ -379,3 +379,18 @@ def test_cut_rock_mass_keeps_its_time_step(friction_deg: float) -> None:
     else:
         assert sim.state.time >= 0.01
     assert sim.max_penetration < 1e-3
+
+
+@pytest.mark.parametrize(("case", "dt", "penalty"), [
+    ("vertex_vertex", 0.01, 1e10),   # a contact held closed in tension threw the cube
+    ("vertex_vertex", 1e-3, 1e8),    # re-detection on another plane started a deeper spring
+    ("slide_off", 0.05, 1e10),       # a contact held closed in tension kept it on the edge
+])
+def test_stability_cases_that_used_to_end_wrong(case: str, dt: float, penalty: float) -> None:
+    """Cases of the stability map (benchmarks/stability.py) that once completed with a
+    wrong answer or a growing energy; each must now pass its own check."""
+    from benchmarks.stability import STAB_CASES, run_one
+
+    row = run_one(STAB_CASES[case], dt, penalty, "regression")
+    assert row["verdict"] == "pass", row["detail"]
+    assert row["energy_growth"] < 0.01
