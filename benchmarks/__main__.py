@@ -141,7 +141,9 @@ def stability_part(st: dict[str, Any], chart: str) -> tuple[str, list[tuple[str,
              "mechanical energy (kinetic + elastic + contact − work of gravity and loads, "
              f"from the recorded frames) never rose more than {st['energy_tol']:.0%} of the "
              "reference energy (initial KE + m g × the case's height) above its start; "
-             "**wrong** = completed but outside tolerance or energy grew; **failed (clear "
+             "**wrong** = completed but outside tolerance or energy grew, and said nothing; "
+             f"**{stability.WARNED}** = the same, but the run's summary warned (soft penalty); "
+             "**failed (clear "
              "status)** = status `failed` with a message; **blew up** = non-finite or no "
              f"message; **{stability.STOPPED}** = cancelled after {st.get('wall_cap', 0):g} s of "
              "wall time (5× that for pile100; energy still checked). Requested Δt: the "
@@ -152,11 +154,11 @@ def stability_part(st: dict[str, Any], chart: str) -> tuple[str, list[tuple[str,
         rows.append([t["case"], _esc(t["criterion"]), ", ".join(f"{x:g}" for x in t["dt_tested"]),
                      _g(t["largest_dt_pass"]), ", ".join(f"{x:g}" for x in t["k_tested"]),
                      f"{t['k_pass'][0]:g} – {t['k_pass'][1]:g}" if t["k_pass"] else "none",
-                     f"{t['wrong']} / {t['failed_clean']} / {t['blew_up']} / {t['stopped']} "
-                     f"of {t['runs']}"])
+                     f"{t['wrong']} / {t.get('warned', 0)} / {t['failed_clean']} / "
+                     f"{t['blew_up']} / {t['stopped']} of {t['runs']}"])
     lines.append(_table(["case", "tolerance", "Δt tested", "largest Δt passing",
                          "k tested", "k passing (any Δt tested)",
-                         "wrong / failed clean / blew up / stopped"], rows))
+                         "wrong / warned / failed clean / blew up / stopped"], rows))
     lines += ["", f"![stability](results/{chart})", "", "Every run:", ""]
     lines.append(_table(["case", "sweep", "Δt", "k", "verdict", "detail", "energy growth",
                          "balance residual", "steps", "wall (s)"],
@@ -173,8 +175,8 @@ def stability_part(st: dict[str, Any], chart: str) -> tuple[str, list[tuple[str,
                 why += f" ({r['detail']})"
             if not r["energy_ok"] and math.isfinite(r["energy_growth"]):
                 why += f"; mechanical energy grew by {r['energy_growth']:.3g} × reference"
-            kind = {"wrong": "silent", "blew up": "silent", stability.STOPPED: "slow"}.get(
-                r["verdict"], "clean")
+            kind = {"wrong": "silent", "blew up": "silent", stability.STOPPED: "slow",
+                    stability.WARNED: "warned"}.get(r["verdict"], "clean")
             failures.append((kind, f"**{r['case']}** ({t['title']}), Δt {r['dt']:g}, k "
                                    f"{r['penalty']:g}: {r['verdict']} after {r['steps']} steps "
                                    f"— {_esc(why)}. Reproduce: `{repro}`"))
@@ -349,6 +351,8 @@ def write_report(out: Path, report: Path, meta: dict[str, Any]) -> None:
               "root).", ""]
     for kind, title in (("silent", "Completed but wrong, energy grew, or raised instead of "
                                    "returning a status (silent failures)"),
+                        ("warned", "Completed outside tolerance, with a warning in the "
+                                   "run's summary"),
                         ("clean", "Stopped with status `failed` and a message (clean stops: "
                                   "the method's limits at these settings, or a scene it "
                                   "cannot finish)"),

@@ -25,6 +25,8 @@ ENERGY_TOL = 0.01
 #: wall-time cap of one run (s), quick and full mode: a run past it is cancelled
 WALL_CAP = {False: 30.0, True: 600.0}
 STOPPED = "stopped at wall cap"
+#: completed outside tolerance, but the run's summary warned about it (soft penalty)
+WARNED = "wrong, warned"
 
 
 def _ctl(dt: float, k: float, duration: float) -> AnalysisControls:
@@ -291,7 +293,8 @@ def run_one(case: StabilityCase, dt: float, k: float, sweep: str,
     energy_ok = bool(en["growth"] <= ENERGY_TOL)
     finite = bool(np.all(np.isfinite(out.result.state.centroid)))
     if completed:
-        verdict = "pass" if within and energy_ok else "wrong"
+        verdict = "pass" if within and energy_ok else (
+            WARNED if out.result.summary.get("warnings") else "wrong")
     elif out.status == "cancelled":
         verdict = STOPPED if energy_ok else "wrong"
     else:
@@ -350,6 +353,7 @@ def summarize(data: dict[str, Any]) -> list[dict[str, Any]]:
             "blew_up": sum(r["verdict"] == "blew up" for r in rows),
             "failed_clean": sum(r["verdict"] == "failed (clear status)" for r in rows),
             "wrong": sum(r["verdict"] == "wrong" for r in rows),
+            "warned": sum(r["verdict"] == WARNED for r in rows),
             "stopped": sum(r["verdict"] == STOPPED for r in rows),
             "runs": len(rows), "bad": bad,
         })
@@ -366,7 +370,7 @@ def plot_stability(out: Path, data: dict[str, Any]) -> str:
 
     h.write_csv(out / "stability.csv", data["rows"])
     colours = {"pass": "tab:green", "wrong": "tab:orange", "failed (clear status)": "tab:blue",
-               "blew up": "tab:red", STOPPED: "tab:gray"}
+               "blew up": "tab:red", STOPPED: "tab:gray", WARNED: "tab:olive"}
     names = [n for n in data["cases"] if any(r["case"] == n for r in data["rows"])]
     fig, axes = plt.subplots(1, 2, figsize=(12, 0.5 * len(names) + 2))
     for ax, sweep, key, label in ((axes[0], "dt", "dt", "requested Δt (s)"),

@@ -45,6 +45,10 @@ FRICTION_RTOL_STALLED = 1e-2
 MAX_SHEAR_SWITCHES = 2
 #: times a contact may open in one step before it is kept closed for the rest of the step
 MAX_REOPENINGS = 2
+#: a run whose contacts penetrated deeper than this fraction of the thinner block's
+#: thickness says so in its summary: the penalty is soft for the loads, and the motion
+#: carries an error of that order
+SOFT_PENALTY_WARNING_RATIO = 0.01
 
 
 @dataclass
@@ -249,6 +253,8 @@ class Simulation:
         self.last: StepResult | None = None
         self.last_dt = self.dt
         self.max_penetration = 0.0
+        #: deepest penetration seen / thickness of the thinner block of that contact
+        self.max_penetration_ratio = 0.0
         #: contacts found already deeply penetrating and relaxed (see plausible_gaps)
         self.relaxed_contacts = 0
         #: wall time (s) per phase: detection, assembly, solve, open_close, update, output
@@ -707,6 +713,10 @@ class Simulation:
         closed = cs.mode != OPEN
         pen = float(np.max(-res.gap1[closed], initial=0.0))
         self.max_penetration = max(self.max_penetration, pen)
+        if np.any(closed):
+            thin = np.minimum(self.thickness[cs.block_i], self.thickness[cs.block_j])
+            ratio = float(np.max(-res.gap1[closed] / thin[closed], initial=0.0))
+            self.max_penetration_ratio = max(self.max_penetration_ratio, ratio)
 
     def step(self) -> StepResult:
         """Advance one step, cutting Δt as needed (raises StepFailure below the minimum)."""
@@ -796,8 +806,20 @@ class Simulation:
         return {
             "status": status, "message": message, "steps": s.step,
             "simulated_time": s.time, "wall_time": wall,
-            "max_penetration": self.max_penetration, "blocks": blocks,
+            "max_penetration": self.max_penetration, "warnings": self.warnings(),
+            "blocks": blocks,
         }
+
+    def warnings(self) -> list[str]:
+        """What the user should know about a run that did complete (soft penalty...)."""
+        out = []
+        if self.max_penetration_ratio > SOFT_PENALTY_WARNING_RATIO:
+            out.append(
+                f"contacts penetrated up to {self.max_penetration:.3g} m "
+                f"({self.max_penetration_ratio:.1%} of the thinner block): the penalty "
+                f"{self.kn:.3g} N/m is soft for these loads and displacements carry an "
+                "error of that order; raise analysis.penalty")
+        return out
 
 
 def _with_modes(contacts: ContactSet, mode: np.ndarray, tangent: np.ndarray,

@@ -289,6 +289,8 @@ def cmd_run(args: argparse.Namespace) -> int:
           f"result {out}", file=sys.stderr)
     if res.message:
         print(res.message, file=sys.stderr)
+    for w in res.summary.get("warnings", []):
+        print(f"warning: {w}", file=sys.stderr)
     return EXIT_OK if res.status == STATUS_COMPLETED else EXIT_RUN
 
 

@@ -49,8 +49,8 @@ def incline_model(phi_deg: float, b: float = 1.0, h: float = 1.0, duration: floa
     return Model(
         blocks=[Block(slab, "slab", fixed=True), Block(block, "block")],
         joint_materials=[JointMaterial(np.radians(phi_deg))],
-        controls=AnalysisControls(duration=duration, time_step=dt, penalty=1e10,
-                                  record_interval=1, **controls),
+        controls=AnalysisControls(**{"duration": duration, "time_step": dt,
+                                     "penalty": 1e10, "record_interval": 1, **controls}),
     )
 
 
@@ -394,3 +394,14 @@ def test_stability_cases_that_used_to_end_wrong(case: str, dt: float, penalty: f
     row = run_one(STAB_CASES[case], dt, penalty, "regression")
     assert row["verdict"] == "pass", row["detail"]
     assert row["energy_growth"] < 0.01
+
+
+def test_soft_penalty_is_reported_not_silent() -> None:
+    """k = 1e6 N/m under a 26 kN block: 5 mm penetration and a 2 % error in the slide;
+    the run completes but its summary says the penalty is soft. At 1e10 it says nothing."""
+    soft = run(incline_model(20.0, duration=0.3, dt=0.01, penalty=1e6))
+    assert soft.status == STATUS_COMPLETED
+    assert len(soft.summary["warnings"]) == 1
+    assert "penalty" in soft.summary["warnings"][0]
+    stiff = run(incline_model(20.0, duration=0.3, dt=0.01))
+    assert stiff.summary["warnings"] == []
