@@ -87,6 +87,11 @@ def sum_by_index(index: np.ndarray, values: np.ndarray, n: int) -> np.ndarray:
     return np.asarray(inc @ flat).reshape((n, *values.shape[1:]))
 
 
+#: systems with at most this many unknowns are assembled and factorized dense: for a few
+#: blocks the sparse machinery costs more than the arithmetic
+DENSE_MAX_UNKNOWNS = 120
+
+
 def block_system(
     row_of: np.ndarray,
     diag: np.ndarray,
@@ -95,17 +100,20 @@ def block_system(
     kii: np.ndarray,
     kij: np.ndarray,
     kjj: np.ndarray,
-) -> tuple[sp.bsr_matrix, np.ndarray]:
+) -> tuple[sp.bsr_matrix | np.ndarray, np.ndarray]:
     """Global K as a block-sparse matrix of `d × d` blocks, one block row per free block.
 
     `row_of (n,) int` is each block's block row (-1 for fixed blocks, rows in block
     order), `diag (n, d, d)` the block terms, `bi`, `bj (c,)` the blocks of each contact
     and `kii`, `kij`, `kjj (c, d, d)` its terms. Returns K and its diagonal blocks
-    `(m, d, d)` (the block-Jacobi preconditioner needs them).
+    `(m, d, d)` (the block-Jacobi preconditioner needs them); K is a dense array for
+    systems of at most DENSE_MAX_UNKNOWNS unknowns.
     """
     d = diag.shape[1]
     m = int(row_of.max(initial=-1)) + 1
     fi, fj = row_of[bi], row_of[bj]
+    if m * d <= DENSE_MAX_UNKNOWNS:
+        return _dense_system(m, diag[row_of >= 0], fi, fj, kii, kij, kjj)
     dblk = diag[row_of >= 0] + sum_by_index(fi, kii, m) + sum_by_index(fj, kjj, m)
     both = (fi >= 0) & (fj >= 0)
     a, b, kab = fi[both], fj[both], kij[both]
@@ -123,6 +131,24 @@ def block_system(
     indptr = np.concatenate([[0], np.cumsum(np.bincount(rows, minlength=m))])
     k = sp.bsr_matrix((data[order], cols[order], indptr), shape=(m * d, m * d))
     return k, dblk
+
+
+def _dense_system(
+    m: int, dblk: np.ndarray, fi: np.ndarray, fj: np.ndarray, kii: np.ndarray,
+    kij: np.ndarray, kjj: np.ndarray,
+) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`block_system` as a dense `(m d, m d)` array for small systems."""
+    d = dblk.shape[1]
+    k4 = np.zeros((m, m, d, d))
+    r = np.arange(m)
+    k4[r, r] = dblk
+    a, b = fi >= 0, fj >= 0
+    np.add.at(k4, (fi[a], fi[a]), kii[a])
+    np.add.at(k4, (fj[b], fj[b]), kjj[b])
+    both = a & b
+    np.add.at(k4, (fi[both], fj[both]), kij[both])
+    np.add.at(k4, (fj[both], fi[both]), np.transpose(kij[both], (0, 2, 1)))
+    return k4.transpose(0, 2, 1, 3).reshape(m * d, m * d), k4[r, r]
 
 
 def contact_stiffness(

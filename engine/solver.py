@@ -9,6 +9,7 @@ from __future__ import annotations
 from collections.abc import Callable
 
 import numpy as np
+import scipy.linalg as sla
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
@@ -22,6 +23,27 @@ CG_RTOL = 1e-12
 
 class SolveError(RuntimeError):
     """The linear system could not be solved (singular or not converged)."""
+
+
+def _dense_solver(k: np.ndarray) -> Callable[[np.ndarray, np.ndarray | None], np.ndarray]:
+    """Cholesky of a small dense K (symmetric positive definite), LU if it is not."""
+    try:
+        fac = sla.cho_factor(k, check_finite=True)
+        solve_with = sla.cho_solve
+    except (sla.LinAlgError, ValueError):
+        try:
+            fac = sla.lu_factor(k, check_finite=True)
+        except (sla.LinAlgError, ValueError) as exc:
+            raise SolveError(f"singular system: {exc}") from exc
+        solve_with = sla.lu_solve
+
+    def dense(f: np.ndarray, x0: np.ndarray | None = None) -> np.ndarray:
+        x = solve_with(fac, f)
+        if not np.all(np.isfinite(x)):
+            raise SolveError("dense solve produced non-finite values")
+        return x
+
+    return dense
 
 
 def _block_jacobi(k: sp.csc_matrix, block: int) -> spla.LinearOperator:
@@ -60,6 +82,8 @@ def make_solver(
     n = k.shape[0]
     if n == 0:
         return lambda f, x0=None: np.zeros(0)
+    if isinstance(k, np.ndarray):
+        return _dense_solver(k)
     if n <= DIRECT_SOLVE_MAX_UNKNOWNS or n % block:
         try:
             lu = spla.splu(sp.csc_matrix(k))
