@@ -110,7 +110,7 @@ def peers_part(pe: dict[str, Any] | None, acc: dict[str, Any] | None) -> str:
             for r in pe["rows"]]
     if acc:
         inc = [r for r in acc["rows"] if r["case"] == "incline" and r["status"] == "completed"
-               and r["oc_iterations"] == 8]
+               and r["oc_iterations"] in acc["grid"]["oc"]]
         rows += [["PolyDDA", r["dt"], r["penalty"], r["steps"], f"{r['wall_s']:.4f}",
                   f"{r['value']:.6f}", f"{r['rel_error']:.2e}", "rigid, this repo"]
                  for r in sorted(inc, key=lambda r: (r["penalty"], -r["dt"]))]
@@ -399,7 +399,7 @@ def main(argv: list[str] | None = None) -> int:
     if "accuracy" in only or acc_cases:
         grid = {"dts": args.dts, "penalties": args.penalties}
         if args.dts or args.penalties:
-            grid.update({"oc_extra": [], "oc": [8]})
+            grid.update({"oc_extra": [], "oc": [20]})
         cases.run_accuracy(out, args.full, acc_cases or None, grid)
         ran.append("accuracy" + (f" ({', '.join(acc_cases)})" if acc_cases else ""))
         stamps["accuracy"] = f"{mode}, {now}"

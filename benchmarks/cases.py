@@ -154,10 +154,10 @@ CASES: dict[str, Case] = {
                    lambda k: pushed_error, "d(1 s) m", PUSHED_D1),
 }
 
-QUICK_GRID = {"dts": [3e-2, 1e-2, 3e-3, 1e-3], "penalties": [1e8, 1e10], "oc": [8],
+QUICK_GRID = {"dts": [1e-1, 3e-2, 1e-2, 3e-3, 1e-3], "penalties": [1e8, 1e10], "oc": [20],
               "oc_extra": [2]}
 FULL_GRID = {"dts": [1e-1, 3e-2, 1e-2, 3e-3, 1e-3, 3e-4],
-             "penalties": [1e7, 1e8, 1e9, 1e10, 1e11, 1e12], "oc": [8], "oc_extra": [1, 2, 4]}
+             "penalties": [1e7, 1e8, 1e9, 1e10, 1e11, 1e12], "oc": [20], "oc_extra": [1, 2, 4]}
 
 
 def sweep_case(case: Case, dts: list[float], penalties: list[float], oc: list[int],
