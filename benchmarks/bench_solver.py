@@ -42,9 +42,9 @@ def system(n: int):
     tj = asm.displacement_matrices(cs.point_j, s.centroid[cs.block_j])
     kn = np.full(len(cs), sim.kn)
     ks = np.where(cs.mode == LOCKED, sim.ks, sim.ks)
-    kii, kij, kjj = asm.contact_stiffness(ti[..., :6], tj[..., :6], cs.normal, kn, ks)
-    k, kdiag = asm.block_system(sim.block_row, kb[:, :6, :6], cs.block_i, cs.block_j,
-                                kii, kij, kjj)
+    plan = asm.plan_system(sim.block_row, kb[:, :6, :6], cs.block_i, cs.block_j,
+                           ti[..., :6], tj[..., :6], cs.normal)
+    k, kdiag = plan.matrix(kn, ks)
     f = asm.scatter_vector(sim.dof_map, np.arange(sim.n), fb, sim.n_unknowns)
     return k, kdiag, f, len(cs)
 

@@ -467,8 +467,12 @@ class Simulation:
         bi, bj = contacts.block_i, contacts.block_j
         n = contacts.normal
         d0 = contacts.gap
-        ti = asm.displacement_matrices(contacts.point_i, s.centroid[bi])
-        tj = asm.displacement_matrices(contacts.point_j, s.centroid[bj])
+        # T at the contact points, only the columns that are unknowns (6 for rigid blocks)
+        ti = np.ascontiguousarray(
+            asm.displacement_matrices(contacts.point_i, s.centroid[bi])[:, :, :nd])
+        tj = np.ascontiguousarray(
+            asm.displacement_matrices(contacts.point_j, s.centroid[bj])[:, :, :nd])
+        dmap = self.dof_map[:, :nd]
         nmat = np.eye(3)[None] - np.einsum("ci,cj->cij", n, n)
         tan_phi = self.tan_phi[contacts.joint_material]
         cohesion_force = self.cohesion[contacts.joint_material] * areas
@@ -477,6 +481,7 @@ class Simulation:
         dstar = np.minimum(d0, 0.0)
         offset = np.zeros((c, 3))  # revised contact point shift for contacts closing (eq. 47)
         solver = None
+        plan: asm.SystemPlan | None = None
         solver_key: tuple[bytes, bytes] | None = None
         x = None
         fric_prev = np.zeros((c, 3))
@@ -490,12 +495,9 @@ class Simulation:
             key = (closed.tobytes(), locked.tobytes())
             ra = shear0 + offset
             if solver is None or key != solver_key:
-                sel = np.flatnonzero(closed)
-                kii, kij, kjj = asm.contact_stiffness(
-                    ti[sel, :, :nd], tj[sel, :, :nd], n[sel], np.full(len(sel), self.kn),
-                    self.ks * locked[sel].astype(float))
-                k, kdiag = asm.block_system(self.block_row, kb, bi[sel], bj[sel],
-                                            kii, kij, kjj)
+                if plan is None:
+                    plan = asm.plan_system(self.block_row, kb, bi, bj, ti, tj, n)
+                k, kdiag = plan.matrix(self.kn * closed, self.ks * locked)
                 clock = self._tick("assembly", clock)
                 try:
                     solver = make_solver(k, nd, kdiag)
@@ -510,8 +512,8 @@ class Simulation:
                         - fric)
             fvec_i = np.einsum("cki,ck->ci", ti, fi_point)
             fvec_j = -np.einsum("cki,ck->ci", tj, fi_point)
-            f = (f_block + asm.scatter_vector(self.dof_map, bi, fvec_i, nu)
-                 + asm.scatter_vector(self.dof_map, bj, fvec_j, nu))
+            f = (f_block + asm.scatter_vector(dmap, bi, fvec_i, nu)
+                 + asm.scatter_vector(dmap, bj, fvec_j, nu))
             clock = self._tick("assembly", clock)
             try:
                 x = solver(f, x)
@@ -521,7 +523,8 @@ class Simulation:
             d = np.zeros((self.n, 12))
             m = self.dof_map >= 0
             d[m] = x[self.dof_map[m]]
-            dr = np.einsum("cij,cj->ci", ti, d[bi]) - np.einsum("cij,cj->ci", tj, d[bj])
+            dr = (np.einsum("cij,cj->ci", ti, d[bi, :nd])
+                  - np.einsum("cij,cj->ci", tj, d[bj, :nd]))
             d1 = d0 + _rows_dot(dr, n)
             dr_t = dr - _rows_dot(dr, n)[:, None] * n
             total_shear = np.einsum("cij,cj->ci", nmat, ra + dr)

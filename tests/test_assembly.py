@@ -1,5 +1,5 @@
-"""Global K assembly: the block-sparse and the small dense paths give the same matrix,
-and every solver path gives the same displacements."""
+"""Global K assembly: the per-step plan gives the brute-force sum of every contact's
+terms on both its dense and its block-sparse path, and every solver path agrees."""
 
 from __future__ import annotations
 
@@ -11,8 +11,8 @@ from engine import assembly as asm
 from engine.solver import make_solver
 
 
-def _random_system(rng: np.random.Generator, n: int = 6, c: int = 25, d: int = 6):
-    """Blocks 0 and 3 fixed, random symmetric contact terms between random pairs."""
+def _random_contacts(rng: np.random.Generator, n: int = 6, c: int = 25, d: int = 6):
+    """Blocks 0 and 3 fixed, random contacts between random pairs of blocks."""
     row_of = np.full(n, -1)
     free = [b for b in range(n) if b not in (0, 3)]
     row_of[free] = np.arange(len(free))
@@ -21,26 +21,14 @@ def _random_system(rng: np.random.Generator, n: int = 6, c: int = 25, d: int = 6
     bi = rng.integers(0, n, c)
     bj = (bi + rng.integers(1, n, c)) % n
     t = rng.normal(size=(c, 3, 2 * d))
-    ti, tj = t[:, :, :d], t[:, :, d:]
     nrm = rng.normal(size=(c, 3))
     nrm /= np.linalg.norm(nrm, axis=1)[:, None]
-    kii, kij, kjj = asm.contact_stiffness(ti, tj, nrm, np.full(c, 3.0), np.full(c, 1.5))
-    return row_of, diag, bi, bj, kii, kij, kjj
+    return row_of, diag, bi, bj, t[:, :, :d].copy(), t[:, :, d:].copy(), nrm
 
 
-def test_dense_and_block_sparse_assembly_agree(monkeypatch: pytest.MonkeyPatch) -> None:
-    rng = np.random.default_rng(7)
-    args = _random_system(rng)
-    dense, ddiag = asm.block_system(*args)
-    assert isinstance(dense, np.ndarray)
-    monkeypatch.setattr(asm, "DENSE_MAX_UNKNOWNS", 0)
-    bsr, sdiag = asm.block_system(*args)
-    assert sp.issparse(bsr)
-    np.testing.assert_allclose(bsr.toarray(), dense, rtol=0, atol=1e-12)
-    np.testing.assert_allclose(sdiag, ddiag, rtol=0, atol=1e-12)
-    np.testing.assert_allclose(dense, dense.T, atol=1e-12)
-    # a brute-force sum of every contact's 2×2 block stencil
-    row_of, diag, bi, bj, kii, kij, kjj = args
+def _brute_force(row_of, diag, bi, bj, ti, tj, nrm, kn, ks) -> np.ndarray:
+    """K summed contact by contact from the paper's spring matrices (eqs. 24, 29)."""
+    kii, kij, kjj = asm.contact_stiffness(ti, tj, nrm, kn, ks)
     m, d = int(row_of.max()) + 1, diag.shape[1]
     ref = np.zeros((m * d, m * d))
     for b in range(len(row_of)):
@@ -53,14 +41,49 @@ def test_dense_and_block_sparse_assembly_agree(monkeypatch: pytest.MonkeyPatch) 
             if row_of[x] >= 0 and row_of[y] >= 0:
                 rx, ry = row_of[x] * d, row_of[y] * d
                 ref[rx:rx + d, ry:ry + d] += blk
-    np.testing.assert_allclose(dense, ref, atol=1e-12)
+    return ref
+
+
+def test_unit_contact_parts_combine_to_the_spring_matrices() -> None:
+    rng = np.random.default_rng(3)
+    *_, ti, tj, nrm = _random_contacts(rng)
+    kn, ks = rng.uniform(0, 5, len(nrm)), rng.uniform(0, 5, len(nrm))
+    normal, shear = asm.contact_parts(ti, tj, nrm)
+    direct = asm.contact_stiffness(ti, tj, nrm, kn, ks)
+    for part in range(3):
+        np.testing.assert_allclose(kn[:, None, None] * normal[part]
+                                   + ks[:, None, None] * shear[part], direct[part], atol=1e-12)
+
+
+@pytest.mark.parametrize("dense", [True, False])
+def test_plan_matrix_is_the_sum_of_contact_terms(dense: bool,
+                                                 monkeypatch: pytest.MonkeyPatch) -> None:
+    rng = np.random.default_rng(7)
+    args = _random_contacts(rng)
+    if not dense:
+        monkeypatch.setattr(asm, "DENSE_MAX_UNKNOWNS", 0)
+    plan = asm.plan_system(*args)
+    assert plan.dense is dense
+    for _ in range(3):  # different open / closed / locked patterns on one plan
+        c = len(args[2])
+        kn = 3.0 * (rng.random(c) < 0.6)
+        ks = 1.5 * (kn > 0) * (rng.random(c) < 0.5)
+        k, kdiag = plan.matrix(kn, ks)
+        full = k if dense else k.toarray()
+        assert isinstance(k, np.ndarray) is dense
+        ref = _brute_force(*args, kn, ks)
+        np.testing.assert_allclose(full, ref, atol=1e-12)
+        d = plan.d
+        for r in range(plan.m):
+            np.testing.assert_allclose(kdiag[r], ref[r * d:r * d + d, r * d:r * d + d],
+                                       atol=1e-12)
 
 
 def test_dense_direct_and_cg_solvers_agree(monkeypatch: pytest.MonkeyPatch) -> None:
     rng = np.random.default_rng(11)
-    args = _random_system(rng, n=60, c=400)
+    args = _random_contacts(rng, n=60, c=400)
     monkeypatch.setattr(asm, "DENSE_MAX_UNKNOWNS", 0)
-    k, kdiag = asm.block_system(*args)
+    k, kdiag = asm.plan_system(*args).matrix(np.full(400, 3.0), np.full(400, 1.5))
     f = rng.normal(size=k.shape[0])
     x_cg = make_solver(k, 6, kdiag)(f, None)          # 348 unknowns: conjugate gradients
     x_dense = make_solver(k.toarray(), 6)(f, None)   # dense Cholesky
