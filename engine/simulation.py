@@ -49,6 +49,10 @@ MAX_REOPENINGS = 2
 #: thickness says so in its summary: the penalty is soft for the loads, and the motion
 #: carries an error of that order
 SOFT_PENALTY_WARNING_RATIO = 0.01
+#: a step whose capped sliding contact slips back against its friction by more than this
+#: fraction of the step displacement limit is redone with a smaller time step (the
+#: friction would push the blocks and create energy; measured on the stability map's pile)
+FRICTION_REVERSAL_RATIO = 0.01
 
 
 @dataclass
@@ -604,6 +608,14 @@ class Simulation:
                     raise StepFailure(
                         f"open-close iteration did not settle: {int(held.sum())} contact(s) "
                         "kept closing and opening")
+                # nor may a sliding contact kept by the switch cap slip against its friction
+                # force: the friction would then push the blocks and create energy
+                driven = sliding & (switches >= MAX_SHEAR_SWITCHES) & (
+                    along < -FRICTION_REVERSAL_RATIO * self.max_step_displacement)
+                if np.any(driven):
+                    raise StepFailure(
+                        f"open-close iteration did not settle: {int(driven.sum())} sliding "
+                        "contact(s) reversed against their friction")
                 closed = mode != OPEN
                 locked = mode == LOCKED
                 ra = shear0 + offset

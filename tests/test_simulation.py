@@ -385,6 +385,8 @@ def test_cut_rock_mass_keeps_its_time_step(friction_deg: float) -> None:
     ("vertex_vertex", 0.01, 1e10),   # a contact held closed in tension threw the cube
     ("vertex_vertex", 1e-3, 1e8),    # re-detection on another plane started a deeper spring
     ("slide_off", 0.05, 1e10),       # a contact held closed in tension kept it on the edge
+    # capped sliding contacts slipping back against their friction fed energy to the pile
+    pytest.param("pile100", 0.01, 1e10, marks=[pytest.mark.slow, pytest.mark.ci]),
 ])
 def test_stability_cases_that_used_to_end_wrong(case: str, dt: float, penalty: float) -> None:
     """Cases of the stability map (benchmarks/stability.py) that once completed with a
