@@ -797,16 +797,17 @@ def _glued(
 
 
 def _groups(
-    fac: _Facets, real: np.ndarray, n_cells: int, sliver: float, merge_below: float,
-    warnings: list[str],
+    fac: _Facets, glued: tuple[np.ndarray, np.ndarray, np.ndarray], sliver: float,
+    merge_below: float, warnings: list[str],
 ) -> tuple[np.ndarray, np.ndarray]:
-    """Union cells across fictitious facets; blocks smaller than `merge_below` (m³) join
-    the neighbour they share the largest face with.
+    """Blocks of the cells `glued` across fictitious facets (:func:`_glued`); blocks
+    smaller than `merge_below` (m³) join the neighbour they share the largest face with.
 
     Returns `(c,) int` group per cell and `(c,) bool` cells dropped (isolated slivers
     below `sliver` m³).
     """
-    group, rows, cols = _glued(fac, real, n_cells)
+    group, rows, cols = glued
+    n_cells = len(group)
     gvol = np.bincount(group, weights=fac.cell_volume)
     small = gvol < max(sliver, merge_below)
     dropped = np.zeros(n_cells, dtype=bool)
@@ -918,10 +919,11 @@ def cut_blocks(
     tag_of_pair = np.where(real, np.array([j.tag for j in jlist] + [-1])[owner], -1)
     vol_dom = abs(domain.volume)
     sliver = tol.sliver_volume * vol_dom
+    glued = _glued(fac, real, len(cells))
     if min_block_volume is None:
-        vols = np.bincount(_glued(fac, real, len(cells))[0], weights=fac.cell_volume)
+        vols = np.bincount(glued[0], weights=fac.cell_volume)
         min_block_volume = MIN_BLOCK_VOLUME_RATIO * float(np.median(vols[vols > 0]))
-    group, dropped = _groups(fac, real, len(cells), sliver, min_block_volume, warnings)
+    group, dropped = _groups(fac, glued, sliver, min_block_volume, warnings)
     cell_facets: list[list[int]] = [[] for _ in cells]
     for f, c in enumerate(fac.cell.tolist()):
         cell_facets[c].append(f)

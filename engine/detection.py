@@ -337,7 +337,7 @@ def detect_contacts(blocks: Sequence[Polyhedron], search_distance: float,
         x = np.concatenate([b.vertices for b in blocks]).astype(float, copy=False)
     else:
         x = np.ascontiguousarray(vertices, dtype=float)
-        if x.shape != (sum(len(b.vertices) for b in blocks), 3):
+        if x.shape != (s.nv, 3):
             raise ValueError(f"vertices has shape {x.shape}, expected one row per block "
                              "vertex")
     scale0 = float(np.ptp(x, axis=0).max())

@@ -190,6 +190,7 @@ class Simulation:
         #: all vertices stacked `(V, 3)` relative to their block centroid, and their block
         counts = [len(p) for p in self.points0]
         self._vertex_block = np.repeat(np.arange(n), counts)
+        self._vertex_start = np.concatenate([[0], np.cumsum(counts)[:-1]]).astype(np.int64)
         self._vertex_rel0 = (np.concatenate(self.points0) - self.c0[self._vertex_block]
                              if n else np.zeros((0, 3)))
         self.volume0 = np.array([p.volume for p in self.polys0])
@@ -224,6 +225,8 @@ class Simulation:
         #: largest displacement of any point in one step (paper eq. 50 in spirit)
         self.max_step_displacement = min(c.max_displacement_ratio * self.scale, 0.5 * thin)
         self.search_distance = 2.0 * self.max_step_displacement
+        #: blocks closer than this (m) touch: their contacts start closed (and bonded)
+        self.touch_gap = DEFAULT_TOLERANCES.length("touching", self.scale)
         #: open-close hysteresis (m): the depth an open contact must penetrate to close
         #: (any tension opens a closed one: a threshold there would act as a bond)
         self.open_close_gap = c.open_close_tolerance * self.max_step_displacement
@@ -265,11 +268,6 @@ class Simulation:
         self.timings: dict[str, float] = {}
 
     # ------------------------------------------------------------------ geometry
-    def current_points(self, b: int, state: State | None = None) -> np.ndarray:
-        """All points `(k, 3)` of block `b` at the current state."""
-        s = state or self.state
-        return s.centroid[b] + (self.points0[b] - self.c0[b]) @ s.affine[b].T
-
     def map_point(self, b: int, point0: np.ndarray) -> np.ndarray:
         """Current position of a material point given at its initial position."""
         s = self.state
@@ -281,7 +279,9 @@ class Simulation:
         return s.centroid[vb] + np.einsum("vij,vj->vi", s.affine[vb], self._vertex_rel0)
 
     def current_polyhedra(self) -> list[Polyhedron]:
-        return [p.moved(self.current_points(b)) for b, p in enumerate(self.polys0)]
+        """The blocks as polyhedra at the current state."""
+        pts = np.split(self.current_vertices(), self._vertex_start[1:])
+        return [p.moved(x) for p, x in zip(self.polys0, pts, strict=True)]
 
     def mass_properties(self) -> tuple[np.ndarray, np.ndarray]:
         """Current volume `(n,)` and second moments `(n, 3, 3)` (affine images of the initial)."""
@@ -426,7 +426,7 @@ class Simulation:
         if s.step == 0:
             strength = (self.cohesion[contacts.joint_material] > 0) | (
                 self.tension[contacts.joint_material] > 0)
-            bonded = strength & (contacts.gap <= 1e-9 * self.scale)
+            bonded = strength & (contacts.gap <= self.touch_gap)
             mode[bonded] = LOCKED
         else:
             broken[row < 0] = True
@@ -436,8 +436,7 @@ class Simulation:
         # layer of contacts per open-close iteration
         old = row >= 0
         old[old] = s.memory.mode[row[old]] != OPEN
-        touch = DEFAULT_TOLERANCES.length("touching", self.scale)
-        new = ~old & (contacts.gap <= touch) & (mode == OPEN)
+        new = ~old & (contacts.gap <= self.touch_gap) & (mode == OPEN)
         sliding = vt_norm * dt * self.ks > np.abs(contacts.gap) * self.kn * tan_phi
         mode[new] = np.where(sliding[new], SLIDING, LOCKED)
         moving = new & (vt_norm > 0)
