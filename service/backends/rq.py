@@ -34,6 +34,10 @@ class RqBackend(Backend):
     """RQ queue + Redis progress hashes; the job table stays the record the API serves."""
 
     period = 0.25
+    #: s after its submission before an accepted job missing from Redis counts as lost; the
+    #: API commits the row before it enqueues, and a tick between the two must not re-enqueue
+    #: (the job would then run twice, on two workers, into the same files)
+    lost_grace = 30.0
 
     def __init__(self, *args: Any, **kwargs: Any) -> None:
         super().__init__(*args, **kwargs)
@@ -115,7 +119,8 @@ class RqBackend(Backend):
                 continue
             status = None if rq_job is None else rq_job.get_status(refresh=False)
             if rq_job is None and job.status == ACCEPTED and not h:
-                self.requeue_lost(job)
+                if now - job.created > self.lost_grace:
+                    self.requeue_lost(job)
             elif rq_job is None or status == JobStatus.FAILED:
                 self.store.update(job.id, only_if=ACTIVE, status=FAILED, finished=now,
                                   error_kind="system",
