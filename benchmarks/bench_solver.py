@@ -18,7 +18,7 @@ from engine.contacts import LOCKED
 from engine.model import AnalysisControls, Block, JointMaterial, Model
 from engine.shapes import box
 from engine.simulation import Simulation
-from engine.solver import CG_RTOL, _inverse_blocks, pcg
+from engine.solver import CG_RTOL, block_jacobi, pcg
 
 
 def grid_model(n: int) -> Model:
@@ -61,7 +61,7 @@ def main() -> None:
         x_direct = spla.splu(k.tocsc()).solve(f)
         t_direct = time.perf_counter() - t0
         t0 = time.perf_counter()
-        pre = _inverse_blocks(kdiag)
+        pre = block_jacobi(kdiag)
         x_cg, iters = pcg(k, f, pre, None, CG_RTOL, 10 * len(f))
         t_cg = time.perf_counter() - t0
         diff = np.linalg.norm(x_cg - x_direct) / np.linalg.norm(x_direct)

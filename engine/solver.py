@@ -1,5 +1,6 @@
 """The linear solve of `K D = F` behind one function: a sparse direct factorization for
-small systems, preconditioned conjugate gradients (block Jacobi, warm start) for large ones.
+small systems, preconditioned conjugate gradients (block Jacobi, warm start, compiled) for
+large ones.
 
 K is symmetric positive definite (inertia + penalty springs; friction is explicit).
 """
@@ -12,6 +13,8 @@ import numpy as np
 import scipy.linalg as sla
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
+
+from engine._solver_kernels import invert_spd_blocks, pcg_bsr
 
 #: systems with more unknowns use conjugate gradients. Measured on real DDA systems
 #: (`python benchmarks/bench_solver.py`, cubes in contact, 2 cores): SuperLU 12.7 ms vs
@@ -46,25 +49,24 @@ def _dense_solver(k: np.ndarray) -> Callable[[np.ndarray, np.ndarray | None], np
     return dense
 
 
-def _block_jacobi(k: sp.csc_matrix, block: int) -> sp.bsr_matrix:
-    """Inverse of the `block`×`block` diagonal blocks of K as a preconditioner."""
+def diagonal_blocks(k: sp.spmatrix, block: int) -> np.ndarray:
+    """The `block`×`block` diagonal blocks of K, `(n / block, block, block)`."""
     n = k.shape[0]
-    nb = n // block
-    kc = k.tocsr()
-    diag = np.zeros((nb, block, block))
+    kc = sp.csr_matrix(k)
+    diag = np.zeros((n // block, block, block))
     for a in range(block):
         for b in range(block):
             diag[:, a, b] = kc[np.arange(a, n, block), np.arange(b, n, block)].A1
-    return _inverse_blocks(diag)
+    return diag
 
 
-def _inverse_blocks(diag: np.ndarray) -> sp.bsr_matrix:
-    """Block-diagonal inverse of `diag (nb, b, b)` as a block-sparse matrix (its product
-    runs in compiled code, not through a Python callback per CG iteration)."""
-    nb, block, _ = diag.shape
-    inv = np.linalg.inv(diag)
-    return sp.bsr_matrix((inv, np.arange(nb), np.arange(nb + 1)),
-                         shape=(nb * block, nb * block))
+def block_jacobi(diag: np.ndarray) -> np.ndarray:
+    """Inverses of K's diagonal blocks `diag (m, b, b)`: the preconditioner of :func:`pcg`
+    (SolveError if a block is not positive definite, i.e. K is not SPD)."""
+    inv, ok = invert_spd_blocks(np.ascontiguousarray(diag, dtype=np.float64))
+    if not ok:
+        raise SolveError("the system matrix is not positive definite (a diagonal block)")
+    return inv
 
 
 def make_solver(
@@ -94,15 +96,15 @@ def make_solver(
             return x
 
         return direct
-    if diag_blocks is not None and diag_blocks.shape == (n // block, block, block):
-        pre = _inverse_blocks(diag_blocks)
-    else:
-        pre = _block_jacobi(sp.csc_matrix(k), block)
-
-    kc = k.tobsr(blocksize=(block, block)) if not sp.isspmatrix_bsr(k) else k
+    if diag_blocks is None or diag_blocks.shape != (n // block, block, block):
+        diag_blocks = diagonal_blocks(k, block)
+    pre = block_jacobi(diag_blocks)
+    kc = k if sp.isspmatrix_bsr(k) and k.blocksize == (block, block) else sp.bsr_matrix(
+        k, blocksize=(block, block))
+    rows = coupled_rows(kc)
 
     def cg(f: np.ndarray, x0: np.ndarray | None = None) -> np.ndarray:
-        x, iters = pcg(kc, f, pre, x0, CG_RTOL, 10 * n)
+        x, iters = pcg(kc, f, pre, x0, CG_RTOL, 10 * n, rows)
         if iters < 0 or not np.all(np.isfinite(x)):
             raise SolveError(f"conjugate gradients did not converge in {10 * n} iterations")
         return x
@@ -110,34 +112,28 @@ def make_solver(
     return cg
 
 
-def pcg(k: sp.spmatrix, f: np.ndarray, m_inv: sp.spmatrix, x0: np.ndarray | None,
-        rtol: float, maxiter: int) -> tuple[np.ndarray, int]:
-    """Preconditioned conjugate gradients for SPD `k`: `(x, iterations)`, iterations -1
-    when ‖f − K x‖ ≤ rtol ‖f‖ was not reached.
+def coupled_rows(k: sp.bsr_matrix) -> np.ndarray:
+    """Block rows of K with a nonzero off-diagonal block `(r,) int`: the blocks that
+    share a closed contact with another free block (the others are solved on their own)."""
+    m = k.shape[0] // k.blocksize[0]
+    row = np.repeat(np.arange(m), np.diff(k.indptr))
+    nonzero = (row != k.indices) & np.any(k.data != 0.0, axis=(1, 2))
+    return np.unique(row[nonzero]).astype(np.int64)
 
-    The textbook recurrence with both products in compiled sparse code: on the systems of
-    a DDA step (hundreds to thousands of unknowns, ~20 iterations, ~10 solves per step)
-    scipy's `cg` spends most of its time in per-iteration Python dispatch (measured ~3×
-    slower on the pile of 100 blocks).
+
+def pcg(k: sp.bsr_matrix, f: np.ndarray, m_inv: np.ndarray, x0: np.ndarray | None,
+        rtol: float, maxiter: int, coupled: np.ndarray | None = None) -> tuple[np.ndarray, int]:
+    """Preconditioned conjugate gradients for SPD `k` (BSR) with the block-Jacobi
+    inverse `m_inv (m, b, b)` of :func:`block_jacobi`: `(x, iterations)`, iterations -1
+    when ‖f − K x‖ ≤ rtol ‖f‖ was not reached. Only the `coupled` block rows (default:
+    :func:`coupled_rows`) iterate; the others are exact after the preconditioner.
+
+    The whole loop is compiled: on the systems of a DDA step (hundreds to thousands of
+    unknowns, ~20-50 iterations, ~10 solves per step) the Python recurrence spent most of
+    its time dispatching its two sparse products.
     """
-    x = np.zeros_like(f) if x0 is None else x0.copy()
-    r = f - k @ x if x0 is not None else f.copy()
-    stop = rtol * float(np.linalg.norm(f))
-    if float(np.linalg.norm(r)) <= stop:
-        return x, 0
-    z = m_inv @ r
-    p = z.copy()
-    rz = float(r @ z)
-    for it in range(1, maxiter + 1):
-        q = k @ p
-        alpha = rz / float(p @ q)
-        x += alpha * p
-        r -= alpha * q
-        if float(np.linalg.norm(r)) <= stop:
-            return x, it
-        z = m_inv @ r
-        rz_new = float(r @ z)
-        p *= rz_new / rz
-        p += z
-        rz = rz_new
-    return x, -1
+    f = np.ascontiguousarray(f, dtype=np.float64)
+    x = np.zeros_like(f) if x0 is None else np.ascontiguousarray(x0, dtype=np.float64)
+    rows = coupled_rows(k) if coupled is None else coupled
+    return pcg_bsr(k.indptr, k.indices, np.ascontiguousarray(k.data, dtype=np.float64),
+                   m_inv, rows, f, x, rtol, maxiter)

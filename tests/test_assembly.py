@@ -8,7 +8,7 @@ import pytest
 import scipy.sparse as sp
 
 from engine import assembly as asm
-from engine.solver import make_solver
+from engine.solver import SolveError, block_jacobi, coupled_rows, make_solver, pcg
 
 
 def _random_contacts(rng: np.random.Generator, n: int = 6, c: int = 25, d: int = 6):
@@ -90,3 +90,29 @@ def test_dense_direct_and_cg_solvers_agree(monkeypatch: pytest.MonkeyPatch) -> N
     np.testing.assert_allclose(x_cg, x_dense, rtol=1e-8, atol=1e-12)
     x_lu = make_solver(sp.csc_matrix(k)[:300, :300], 6)(f[:300], None)  # SuperLU
     np.testing.assert_allclose(k.toarray()[:300, :300] @ x_lu, f[:300], atol=1e-8)
+
+
+def test_cg_solves_blocks_without_closed_contacts_on_their_own(
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    """With most contacts open, most block rows have no off-diagonal term: CG iterates on
+    the coupled rows only and the isolated ones are exact from their block inverse."""
+    rng = np.random.default_rng(5)
+    args = _random_contacts(rng, n=80, c=300)
+    monkeypatch.setattr(asm, "DENSE_MAX_UNKNOWNS", 0)
+    kn = np.where(rng.random(300) < 0.1, 3.0, 0.0)  # ~30 closed contacts
+    k, kdiag = asm.plan_system(*args).matrix(kn, 0.5 * kn)
+    rows = coupled_rows(k)
+    assert 0 < len(rows) < k.shape[0] // 6  # some coupled, some isolated
+    f = rng.normal(size=k.shape[0])
+    x_cg = make_solver(k, 6, kdiag)(f, rng.normal(size=k.shape[0]))  # any warm start
+    np.testing.assert_allclose(k @ x_cg, f, atol=1e-9 * np.linalg.norm(f))
+    x, _ = pcg(k, f, block_jacobi(kdiag), None, 1e-12, 1000, np.zeros(0, dtype=np.int64))
+    isolated = np.setdiff1d(np.arange(k.shape[0] // 6), rows)
+    idx = (6 * isolated[:, None] + np.arange(6)).ravel()
+    np.testing.assert_allclose((k @ x)[idx], f[idx], atol=1e-9 * np.linalg.norm(f))
+
+
+def test_cg_refuses_a_matrix_that_is_not_positive_definite() -> None:
+    k = sp.bsr_matrix(np.diag([1.0, 2, 3, 4, 5, -6] * 60), blocksize=(6, 6))
+    with pytest.raises(SolveError, match="not positive definite"):
+        make_solver(k, 6)
