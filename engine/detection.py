@@ -294,24 +294,23 @@ def _build_scene(blocks: Sequence[Polyhedron]) -> _Scene:
     )
 
 
-#: recently used scenes: topology identity of the blocks -> (scene, the topology objects)
-_SCENE_CACHE: dict[tuple, tuple[_Scene, list]] = {}
+#: recently used scenes: identity of the blocks -> (scene, the blocks)
+_SCENE_CACHE: dict[tuple[int, ...], tuple[_Scene, list]] = {}
 _SCENE_CACHE_SIZE = 8
 
 
 def _scene(blocks: Sequence[Polyhedron]) -> _Scene:
-    """The flat topology arrays of `blocks`, cached on the identity of their topology
-    arrays (the entry holds them, so their ids cannot be reused while it lives)."""
-    refs = [(b.face_indptr, b.face_indices, b.face_tags, b.pieces, len(b.vertices))
-            for b in blocks]
-    key = tuple((id(a), id(b), id(c), id(d), n) for a, b, c, d, n in refs)
+    """The flat topology arrays of `blocks`, cached on the identity of the blocks (a
+    Polyhedron's topology never changes; the entry holds the blocks, so their ids cannot be
+    reused while it lives)."""
+    key = tuple(map(id, blocks))
     hit = _SCENE_CACHE.get(key)
     if hit is not None:
         return hit[0]
     s = _build_scene(blocks)
     if len(_SCENE_CACHE) >= _SCENE_CACHE_SIZE:
         _SCENE_CACHE.pop(next(iter(_SCENE_CACHE)))
-    _SCENE_CACHE[key] = (s, refs)
+    _SCENE_CACHE[key] = (s, list(blocks))
     return s
 
 

@@ -19,12 +19,13 @@ from scipy.spatial import ConvexHull, QhullError
 from scipy.spatial.transform import Rotation
 
 from engine import assembly as asm
+from engine._assembly_kernels import add_contact_loads, relative_displacement
 from engine.contacts import LOCKED, OPEN, SLIDING, ContactSet, assign_joint_materials
 from engine.detection import detect_contacts
 from engine.frame import Frame, Recorder
 from engine.geometry import Polyhedron, rotation_matrix
 from engine.model import Model
-from engine.solver import SolveError, make_solver
+from engine.solver import BlockJacobi, SolveError, make_solver
 from engine.tolerances import DEFAULT_TOLERANCES
 
 STATUS_COMPLETED = "completed"
@@ -32,6 +33,10 @@ STATUS_FAILED = "failed"
 STATUS_CANCELLED = "cancelled"
 
 #: time-step cut factor when a step fails, and growth factor after easy steps
+#: a step's displacement limit: this × the displacement its start velocities predict ...
+SEARCH_SAFETY = 2.0
+#: ... and at least this fraction of the model's step limit (blocks at rest)
+SEARCH_FLOOR = 0.02
 DT_CUT = 0.3
 DT_GROW = 1.5
 #: relative change of friction forces below which the open-close iteration has converged
@@ -225,6 +230,8 @@ class Simulation:
         #: largest displacement of any point in one step (paper eq. 50 in spirit)
         self.max_step_displacement = min(c.max_displacement_ratio * self.scale, 0.5 * thin)
         self.search_distance = 2.0 * self.max_step_displacement
+        #: search each step within twice its own predicted limit (:meth:`step_limit`)
+        self.adaptive_search = True
         #: blocks closer than this (m) touch: their contacts start closed (and bonded)
         self.touch_gap = DEFAULT_TOLERANCES.length("touching", self.scale)
         #: open-close hysteresis (m): the depth an open contact must penetrate to close
@@ -292,9 +299,11 @@ class Simulation:
         return vol, second
 
     # ------------------------------------------------------------------ contacts
-    def detect(self) -> ContactSet:
-        """Contacts at the start of the step with joint materials and patch areas."""
-        contacts = detect_contacts(self.polys0, self.search_distance, active=~self.fixed,
+    def detect(self, search: float | None = None) -> ContactSet:
+        """Contacts within `search` m (default :attr:`search_distance`) at the start of the
+        step, with their joint materials."""
+        contacts = detect_contacts(self.polys0, self.search_distance if search is None
+                                   else search, active=~self.fixed,
                                    vertices=self.current_vertices())
         m = self.model
         assign_joint_materials(contacts, m.default_joint_material, m.joint_material_of_tag,
@@ -475,7 +484,7 @@ class Simulation:
             asm.displacement_matrices(contacts.point_i, s.centroid[bi])[:, :, :nd])
         tj = np.ascontiguousarray(
             asm.displacement_matrices(contacts.point_j, s.centroid[bj])[:, :, :nd])
-        dmap = self.dof_map[:, :nd]
+        dmap = np.ascontiguousarray(self.dof_map[:, :nd])
         nmat = np.eye(3)[None] - np.einsum("ci,cj->cij", n, n)
         tan_phi = self.tan_phi[contacts.joint_material]
         cohesion_force = self.cohesion[contacts.joint_material] * areas
@@ -484,6 +493,7 @@ class Simulation:
         dstar = np.minimum(d0, 0.0)
         offset = np.zeros((c, 3))  # revised contact point shift for contacts closing (eq. 47)
         solver = None
+        jacobi = BlockJacobi()
         plan: asm.SystemPlan | None = None
         solver_key: tuple[bytes, bytes] | None = None
         x = None
@@ -503,7 +513,7 @@ class Simulation:
                 k, kdiag = plan.matrix(self.kn * closed, self.ks * locked)
                 clock = self._tick("assembly", clock)
                 try:
-                    solver = make_solver(k, nd, kdiag)
+                    solver = make_solver(k, nd, kdiag, jacobi)
                 except SolveError as exc:
                     raise StepFailure(str(exc)) from exc
                 solver_key = key
@@ -513,21 +523,15 @@ class Simulation:
             fi_point = (-(self.kn * d0 * closed)[:, None] * n
                         - self.ks * locked[:, None] * np.einsum("cij,cj->ci", nmat, ra)
                         - fric)
-            fvec_i = np.einsum("cki,ck->ci", ti, fi_point)
-            fvec_j = -np.einsum("cki,ck->ci", tj, fi_point)
-            f = (f_block + asm.scatter_vector(dmap, bi, fvec_i, nu)
-                 + asm.scatter_vector(dmap, bj, fvec_j, nu))
+            f = f_block.copy()
+            add_contact_loads(f, dmap, bi, bj, ti, tj, fi_point)
             clock = self._tick("assembly", clock)
             try:
                 x = solver(f, x)
             except SolveError as exc:
                 raise StepFailure(str(exc)) from exc
             clock = self._tick("solve", clock)
-            d = np.zeros((self.n, 12))
-            m = self.dof_map >= 0
-            d[m] = x[self.dof_map[m]]
-            dr = (np.einsum("cij,cj->ci", ti, d[bi, :nd])
-                  - np.einsum("cij,cj->ci", tj, d[bj, :nd]))
+            dr = relative_displacement(x, dmap, bi, bj, ti, tj)
             d1 = d0 + _rows_dot(dr, n)
             dr_t = dr - _rows_dot(dr, n)[:, None] * n
             total_shear = np.einsum("cij,cj->ci", nmat, ra + dr)
@@ -632,6 +636,9 @@ class Simulation:
                 opened = ~closed & (d0 < 0)
                 num += 0.5 * self.kn * float(np.sum(opened * d0**2))
                 num += 0.5 * self.ks * float(np.sum(opened * _rows_dot(shear0, shear0)))
+                d = np.zeros((self.n, 12))
+                m = self.dof_map >= 0
+                d[m] = x[self.dof_map[m]]
                 num += self._block_dissipation(d)
                 return StepResult(
                     d=d, contacts=_with_modes(contacts, mode, tangent, d1),
@@ -678,6 +685,22 @@ class Simulation:
         now = _time.perf_counter()
         self.timings[phase] = self.timings.get(phase, 0.0) + now - since
         return now
+
+    def step_limit(self, dt: float) -> float:
+        """The displacement limit (m) of the next step: SEARCH_SAFETY × what the blocks'
+        velocities, gravity and loads predict for a step of `dt`, within [SEARCH_FLOOR, 1] ×
+        :attr:`max_step_displacement`. Contacts are searched within twice it, so a falling
+        pile looks for mm, not the model's 1 % of its size (a step that moves further is
+        detected again with a larger search, at the same Δt)."""
+        if not self.adaptive_search:
+            return self.max_step_displacement
+        accel = float(np.linalg.norm(self.model.gravity))
+        if self.loads_ref:
+            mass = self.density * self.mass_properties()[0]
+            accel += max(float(np.linalg.norm(f)) / mass[b] for b, _, f in self.loads_ref)
+        pred = self.max_point_displacement(self.state.velocity * dt) + accel * dt**2
+        return float(np.clip(SEARCH_SAFETY * pred, SEARCH_FLOOR * self.max_step_displacement,
+                             self.max_step_displacement))
 
     def max_point_displacement(self, d: np.ndarray) -> float:
         """Bound on the largest displacement of any block point in the step (m)."""
@@ -735,23 +758,24 @@ class Simulation:
     def step(self) -> StepResult:
         """Advance one step, cutting Δt as needed (raises StepFailure below the minimum)."""
         c = self.model.controls
-        clock = _time.perf_counter()
-        contacts = self.detect()
-        self.relaxed_contacts += self.plausible_gaps(contacts)
-        clock = self._tick("detection", clock)
-        areas = (self.contact_areas(contacts) if self.needs_areas
-                 else np.zeros(len(contacts)))
         remaining = c.duration - self.state.time
         dt = min(self.dt, remaining) if remaining > 0 else self.dt
+        limit = self.step_limit(dt)
+        contacts, areas = self._contacts_within(2.0 * limit)
         reason = ""
         while dt >= c.min_time_step:
             try:
                 res = self.solve_step(contacts, dt, areas)
                 disp = self.max_point_displacement(res.d)
-                if disp > self.max_step_displacement:
+                if disp > limit and limit < self.max_step_displacement:
+                    # moved further than predicted: search again, wider, same Δt
+                    limit = min(SEARCH_SAFETY * disp, self.max_step_displacement)
+                    contacts, areas = self._contacts_within(2.0 * limit)
+                    continue
+                if disp > limit:
                     raise StepFailure(
                         f"largest displacement {disp:.3g} m exceeds the step limit "
-                        f"{self.max_step_displacement:.3g} m")
+                        f"{limit:.3g} m")
                 self.check_penetration(res)
             except StepFailure as exc:
                 reason = str(exc)
@@ -770,6 +794,16 @@ class Simulation:
         raise StepFailure(
             f"step {self.state.step + 1} at t = {self.state.time:.6g} s did not converge even "
             f"at the smallest time step {c.min_time_step:g} s: {reason}")
+
+    def _contacts_within(self, search: float) -> tuple[ContactSet, np.ndarray]:
+        """Contacts of the step within `search` m (depths made plausible) and their areas."""
+        clock = _time.perf_counter()
+        contacts = self.detect(min(search, self.search_distance))
+        self.relaxed_contacts += self.plausible_gaps(contacts)
+        self._tick("detection", clock)
+        areas = (self.contact_areas(contacts) if self.needs_areas
+                 else np.zeros(len(contacts)))
+        return contacts, areas
 
     # ------------------------------------------------------------------ output
     def energies(self, res: StepResult | None) -> dict[str, float]:

@@ -69,14 +69,37 @@ def block_jacobi(diag: np.ndarray) -> np.ndarray:
     return inv
 
 
+class BlockJacobi:
+    """The block-Jacobi preconditioner across the matrices of one open-close iteration:
+    only the diagonal blocks that changed since the last K (the blocks whose contacts
+    changed mode) are inverted again."""
+
+    def __init__(self) -> None:
+        self.diag: np.ndarray | None = None
+        self.inv: np.ndarray | None = None
+
+    def __call__(self, diag: np.ndarray) -> np.ndarray:
+        """Inverses of `diag (m, b, b)` (see :func:`block_jacobi`)."""
+        if self.diag is None or self.inv is None or self.diag.shape != diag.shape:
+            inv = block_jacobi(diag)
+        else:
+            changed = np.flatnonzero(np.any(diag != self.diag, axis=(1, 2)))
+            inv = self.inv.copy()
+            inv[changed] = block_jacobi(diag[changed])
+        self.diag, self.inv = diag.copy(), inv
+        return inv
+
+
 def make_solver(
-    k: sp.spmatrix, block: int = 6, diag_blocks: np.ndarray | None = None
+    k: sp.spmatrix, block: int = 6, diag_blocks: np.ndarray | None = None,
+    jacobi: BlockJacobi | None = None,
 ) -> Callable[[np.ndarray, np.ndarray | None], np.ndarray]:
     """A function `solve(F, x0) -> D` for this K, factorized or CG by size.
 
     The factorization (or preconditioner) is built once and reused for every
     right-hand side of the open-close iteration that keeps the same K. `diag_blocks
-    (n / block, block, block)`, when given, are K's diagonal blocks (saves extracting them).
+    (n / block, block, block)`, when given, are K's diagonal blocks (saves extracting them);
+    `jacobi` keeps the preconditioner of the previous K to update it.
     """
     n = k.shape[0]
     if n == 0:
@@ -98,7 +121,7 @@ def make_solver(
         return direct
     if diag_blocks is None or diag_blocks.shape != (n // block, block, block):
         diag_blocks = diagonal_blocks(k, block)
-    pre = block_jacobi(diag_blocks)
+    pre = (jacobi or block_jacobi)(diag_blocks)
     kc = k if sp.isspmatrix_bsr(k) and k.blocksize == (block, block) else sp.bsr_matrix(
         k, blocksize=(block, block))
     rows = coupled_rows(kc)

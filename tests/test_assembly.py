@@ -8,7 +8,14 @@ import pytest
 import scipy.sparse as sp
 
 from engine import assembly as asm
-from engine.solver import SolveError, block_jacobi, coupled_rows, make_solver, pcg
+from engine.solver import (
+    BlockJacobi,
+    SolveError,
+    block_jacobi,
+    coupled_rows,
+    make_solver,
+    pcg,
+)
 
 
 def _random_contacts(rng: np.random.Generator, n: int = 6, c: int = 25, d: int = 6):
@@ -116,3 +123,16 @@ def test_cg_refuses_a_matrix_that_is_not_positive_definite() -> None:
     k = sp.bsr_matrix(np.diag([1.0, 2, 3, 4, 5, -6] * 60), blocksize=(6, 6))
     with pytest.raises(SolveError, match="not positive definite"):
         make_solver(k, 6)
+
+
+def test_block_jacobi_reinverts_only_changed_blocks() -> None:
+    rng = np.random.default_rng(2)
+    a = rng.normal(size=(40, 6, 6))
+    diag = np.einsum("nij,nkj->nik", a, a) + 6.0 * np.eye(6)
+    jac = BlockJacobi()
+    np.testing.assert_allclose(jac(diag), np.linalg.inv(diag), rtol=1e-10, atol=1e-12)
+    diag2 = diag.copy()
+    diag2[[3, 17]] += 2.0 * np.eye(6)
+    np.testing.assert_allclose(jac(diag2), np.linalg.inv(diag2), rtol=1e-10, atol=1e-12)
+    np.testing.assert_allclose(jac(diag[:10]), np.linalg.inv(diag[:10]), rtol=1e-10,
+                               atol=1e-12)
