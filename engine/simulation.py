@@ -33,10 +33,6 @@ STATUS_FAILED = "failed"
 STATUS_CANCELLED = "cancelled"
 
 #: time-step cut factor when a step fails, and growth factor after easy steps
-#: a step's displacement limit: this × the displacement its start velocities predict ...
-SEARCH_SAFETY = 2.0
-#: ... and at least this fraction of the model's step limit (blocks at rest)
-SEARCH_FLOOR = 0.02
 DT_CUT = 0.3
 DT_GROW = 1.5
 #: relative change of friction forces below which the open-close iteration has converged
@@ -230,8 +226,6 @@ class Simulation:
         #: largest displacement of any point in one step (paper eq. 50 in spirit)
         self.max_step_displacement = min(c.max_displacement_ratio * self.scale, 0.5 * thin)
         self.search_distance = 2.0 * self.max_step_displacement
-        #: search each step within twice its own predicted limit (:meth:`step_limit`)
-        self.adaptive_search = True
         #: blocks closer than this (m) touch: their contacts start closed (and bonded)
         self.touch_gap = DEFAULT_TOLERANCES.length("touching", self.scale)
         #: open-close hysteresis (m): the depth an open contact must penetrate to close
@@ -686,22 +680,6 @@ class Simulation:
         self.timings[phase] = self.timings.get(phase, 0.0) + now - since
         return now
 
-    def step_limit(self, dt: float) -> float:
-        """The displacement limit (m) of the next step: SEARCH_SAFETY × what the blocks'
-        velocities, gravity and loads predict for a step of `dt`, within [SEARCH_FLOOR, 1] ×
-        :attr:`max_step_displacement`. Contacts are searched within twice it, so a falling
-        pile looks for mm, not the model's 1 % of its size (a step that moves further is
-        detected again with a larger search, at the same Δt)."""
-        if not self.adaptive_search:
-            return self.max_step_displacement
-        accel = float(np.linalg.norm(self.model.gravity))
-        if self.loads_ref:
-            mass = self.density * self.mass_properties()[0]
-            accel += max(float(np.linalg.norm(f)) / mass[b] for b, _, f in self.loads_ref)
-        pred = self.max_point_displacement(self.state.velocity * dt) + accel * dt**2
-        return float(np.clip(SEARCH_SAFETY * pred, SEARCH_FLOOR * self.max_step_displacement,
-                             self.max_step_displacement))
-
     def max_point_displacement(self, d: np.ndarray) -> float:
         """Bound on the largest displacement of any block point in the step (m)."""
         trans = np.linalg.norm(d[:, :3], axis=1)
@@ -760,22 +738,16 @@ class Simulation:
         c = self.model.controls
         remaining = c.duration - self.state.time
         dt = min(self.dt, remaining) if remaining > 0 else self.dt
-        limit = self.step_limit(dt)
-        contacts, areas = self._contacts_within(2.0 * limit)
+        contacts, areas = self._contacts_within(self.search_distance)
         reason = ""
         while dt >= c.min_time_step:
             try:
                 res = self.solve_step(contacts, dt, areas)
                 disp = self.max_point_displacement(res.d)
-                if disp > limit and limit < self.max_step_displacement:
-                    # moved further than predicted: search again, wider, same Δt
-                    limit = min(SEARCH_SAFETY * disp, self.max_step_displacement)
-                    contacts, areas = self._contacts_within(2.0 * limit)
-                    continue
-                if disp > limit:
+                if disp > self.max_step_displacement:
                     raise StepFailure(
                         f"largest displacement {disp:.3g} m exceeds the step limit "
-                        f"{limit:.3g} m")
+                        f"{self.max_step_displacement:.3g} m")
                 self.check_penetration(res)
             except StepFailure as exc:
                 reason = str(exc)

@@ -407,3 +407,4 @@ def test_soft_penalty_is_reported_not_silent() -> None:
     assert "penalty" in soft.summary["warnings"][0]
     stiff = run(incline_model(20.0, duration=0.3, dt=0.01))
     assert stiff.summary["warnings"] == []
+
