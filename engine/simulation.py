@@ -54,6 +54,10 @@ SOFT_PENALTY_WARNING_RATIO = 0.01
 #: fraction of the step displacement limit is redone with a smaller time step (the
 #: friction would push the blocks and create energy; measured on the stability map's pile)
 FRICTION_REVERSAL_RATIO = 0.01
+#: a converged step whose penalty springs release more than this fraction of the blocks'
+#: kinetic energy (plus the round-off floor) that they never stored is redone with a
+#: smaller time step
+SPRING_ENERGY_RTOL = 1e-2
 
 
 @dataclass
@@ -265,6 +269,13 @@ class Simulation:
         self.max_penetration_ratio = 0.0
         #: contacts found already deeply penetrating and relaxed (see plausible_gaps)
         self.relaxed_contacts = 0
+        #: J: energy differences below this are round-off (1e-6 of the model's potential
+        #: energy scale or of a spring pressed by a whole step limit)
+        vol0 = np.array([p.volume for p in self.polys0])
+        self.energy_floor = 1e-6 * max(
+            float(np.sum((self.density * vol0)[~self.fixed]))
+            * float(np.linalg.norm(model.gravity))
+            * self.scale, 0.5 * self.kn * self.max_step_displacement**2)
         #: wall time (s) per phase: detection, assembly, solve, open_close, update, output
         self.timings: dict[str, float] = {}
 
@@ -459,7 +470,7 @@ class Simulation:
         """Open-close iteration for one step at time step `dt` (raises StepFailure)."""
         s = self.state
         clock = _time.perf_counter()
-        kb, fb, _ = self.block_terms(dt)
+        kb, fb, mass = self.block_terms(dt)
         nu = self.n_unknowns
         nd = self.ndof
         kb = kb[:, :nd, :nd]
@@ -634,6 +645,14 @@ class Simulation:
                 m = self.dof_map >= 0
                 d[m] = x[self.dof_map[m]]
                 num += self._block_dissipation(d)
+                # the implicit springs only take energy out; one that gives some back (a
+                # spring re-locked with an offset from an earlier cycle of a fast step) would
+                # accelerate the blocks: redo the step smaller
+                kinetic = 0.5 * float(np.einsum("ni,nij,nj->", s.velocity, mass, s.velocity))
+                if -num > SPRING_ENERGY_RTOL * kinetic + self.energy_floor:
+                    raise StepFailure(
+                        f"open-close iteration settled with springs that release {-num:.3g} J "
+                        "they never stored")
                 return StepResult(
                     d=d, contacts=_with_modes(contacts, mode, tangent, d1),
                     gap1=d1, shear=np.where(locked[:, None], total_shear, 0.0), slip=dr_t,
