@@ -304,10 +304,11 @@ def savings_failures(sv: dict[str, Any]) -> list[tuple[str, str]]:
             continue
         scene = ("rock_mass_model(3.4)" if r["variant"].startswith("rock")
                  else "pile_model(100)")
-        out.append(("clean", f"**{r['variant']}** stops at step 1: {_esc(r['message'])}. "
-                    "Reproduce: `python -c \"from benchmarks.pile import *; "
-                    "from engine.simulation import Simulation; "
-                    f"s = Simulation({scene}); s.search_distance *= 10; s.step()\"`"))
+        adaptive = "adaptive" in r["variant"]
+        out.append(("clean", f"**{r['variant']}** stops after {r['steps']} steps: "
+                    f"{_esc(r['message'])}. Reproduce: `python -c \"from benchmarks.pile "
+                    "import *; from benchmarks.scaling import time_steps; print(time_steps("
+                    f"{scene}, {r['steps'] + 1}, adaptive_search={adaptive}))\"`"))
     return out
 
 

@@ -23,19 +23,19 @@ PHASES = ("detection", "assembly", "solve", "open_close", "update")
 
 
 def time_steps(model: Model, steps: int | None, memory: bool = False,
-               search_factor: float = 1.0, warmup: int = 2,
+               adaptive_search: bool = True, warmup: int = 2,
                simulated_s: float | None = None) -> dict[str, Any]:
     """Step `model` `steps` times (None: no count limit), or until `simulated_s` of
     simulated time have passed, or until it fails, after `warmup` untimed steps;
     per-step wall and phase times of the timed steps. With `memory`, the peak of Python
     allocations is measured in a separate short run (tracemalloc slows Python code
     several-fold, so it must not run under the timed steps)."""
-    peak = _traced_peak_mb(model, warmup + min(steps or 3, 3), search_factor) if memory else (
+    peak = _traced_peak_mb(model, warmup + min(steps or 3, 3), adaptive_search) if memory else (
         float("nan"))
     t0 = time.perf_counter()
     sim = Simulation(model)
     setup = time.perf_counter() - t0
-    sim.search_distance *= search_factor
+    sim.adaptive_search = adaptive_search
     contacts = []
     status, message = "completed", ""
     for _ in range(warmup):
@@ -69,12 +69,12 @@ def time_steps(model: Model, steps: int | None, memory: bool = False,
             **{f"t_{p}": sim.timings.get(p, 0.0) / max(n, 1) for p in PHASES}}
 
 
-def _traced_peak_mb(model: Model, steps: int, search_factor: float) -> float:
+def _traced_peak_mb(model: Model, steps: int, adaptive_search: bool) -> float:
     """Peak MB of Python allocations while setting up and stepping `model` `steps` times."""
     tracemalloc.start()
     try:
         sim = Simulation(model)
-        sim.search_distance *= search_factor
+        sim.adaptive_search = adaptive_search
         for _ in range(steps):
             try:
                 sim.step()
@@ -197,15 +197,17 @@ def run_savings(out: Path, full: bool) -> dict[str, Any]:
              "status": o.status, "message": o.message, "simulated": o.simulated,
              **{f"t_{p}": o.timings.get(p, 0.0) / max(o.steps, 1) for p in PHASES}}
         add("fixed blocks", variant, r, incline_rel_error=err)
-    # contact search distance: the engine's (2 × step limit) vs 10× larger
+    # contact search: each step's own predicted limit (default) vs the model's step limit
+    variants = (("adaptive search (each step's predicted displacement)", True),
+                ("fixed search (2 × the model's step limit)", False))
     mass = rock_mass_model(3.4)
-    for f in (1.0, 10.0):
-        add("search distance", f"rock mass, {f:g}× default search",
-            time_steps(mass, 10 if not full else 40, search_factor=f))
+    for name, adaptive in variants:
+        add("search distance", f"rock mass, {name}",
+            time_steps(mass, 10 if not full else 40, adaptive_search=adaptive))
     if pile_path(100).exists():
-        for f in (1.0, 10.0):
-            add("search distance", f"pile_100, {f:g}× default search",
-                time_steps(pile_model(100), 20 if not full else 100, search_factor=f))
+        for name, adaptive in variants:
+            add("search distance", f"pile_100, {name}",
+                time_steps(pile_model(100), 20 if not full else 100, adaptive_search=adaptive))
     # adaptive Δt (start large, cut where needed) vs a fixed small Δt
     for variant, m, fixed_dt in (
             ("impact, adaptive from Δt = 1e-2", fall_model(dt=1e-2, duration=1.0), False),

@@ -33,6 +33,10 @@ STATUS_FAILED = "failed"
 STATUS_CANCELLED = "cancelled"
 
 #: time-step cut factor when a step fails, and growth factor after easy steps
+#: a step's displacement limit: this × the displacement its start velocities predict ...
+SEARCH_SAFETY = 2.0
+#: ... and at least this fraction of the model's step limit (blocks at rest)
+SEARCH_FLOOR = 0.02
 DT_CUT = 0.3
 DT_GROW = 1.5
 #: relative change of friction forces below which the open-close iteration has converged
@@ -230,6 +234,8 @@ class Simulation:
         #: largest displacement of any point in one step (paper eq. 50 in spirit)
         self.max_step_displacement = min(c.max_displacement_ratio * self.scale, 0.5 * thin)
         self.search_distance = 2.0 * self.max_step_displacement
+        #: search each step within its own predicted limit (:meth:`step_search`)
+        self.adaptive_search = True
         #: blocks closer than this (m) touch: their contacts start closed (and bonded)
         self.touch_gap = DEFAULT_TOLERANCES.length("touching", self.scale)
         #: open-close hysteresis (m): the depth an open contact must penetrate to close
@@ -699,6 +705,32 @@ class Simulation:
         self.timings[phase] = self.timings.get(phase, 0.0) + now - since
         return now
 
+    def step_limit(self, dt: float) -> float:
+        """The displacement limit (m) of the next step: SEARCH_SAFETY × what the blocks'
+        velocities, gravity and loads predict for a step of `dt`, within [SEARCH_FLOOR, 1] ×
+        :attr:`max_step_displacement` (a step that moves further is detected again with a
+        larger search, at the same Δt)."""
+        if not self.adaptive_search:
+            return self.max_step_displacement
+        accel = float(np.linalg.norm(self.model.gravity))
+        if self.loads_ref:
+            mass = self.density * self.mass_properties()[0]
+            accel += max(float(np.linalg.norm(f)) / mass[b] for b, _, f in self.loads_ref)
+        pred = self.max_point_displacement(self.state.velocity * dt) + accel * dt**2
+        return float(np.clip(SEARCH_SAFETY * pred, SEARCH_FLOOR * self.max_step_displacement,
+                             self.max_step_displacement))
+
+    def step_search(self, limit: float) -> float:
+        """Contact search distance (m) of a step whose points move at most `limit`: twice
+        it, and at least twice the deepest penetration the last step ended with (detection
+        keeps penetrations down to about -2 × search, so no contact is lost); the model's
+        full :attr:`search_distance` on the first step, whose overlaps are the user's. A
+        falling pile then looks for millimetres, not for 1 % of the model's size."""
+        if not self.adaptive_search or self.last is None:
+            return self.search_distance
+        deepest = float(np.max(-self.last.gap1, initial=0.0))
+        return min(max(2.0 * limit, 2.0 * deepest), self.search_distance)
+
     def max_point_displacement(self, d: np.ndarray) -> float:
         """Bound on the largest displacement of any block point in the step (m)."""
         trans = np.linalg.norm(d[:, :3], axis=1)
@@ -757,16 +789,23 @@ class Simulation:
         c = self.model.controls
         remaining = c.duration - self.state.time
         dt = min(self.dt, remaining) if remaining > 0 else self.dt
-        contacts, areas = self._contacts_within(self.search_distance)
+        limit = self.step_limit(dt)
+        contacts, areas = self._contacts_within(self.step_search(limit))
         reason = ""
         while dt >= c.min_time_step:
             try:
                 res = self.solve_step(contacts, dt, areas)
                 disp = self.max_point_displacement(res.d)
-                if disp > self.max_step_displacement:
+                if disp > limit and limit < self.max_step_displacement:
+                    # moved further than predicted: search again, wider, same Δt
+                    limit = min(max(SEARCH_SAFETY * disp, 2.0 * limit),
+                                self.max_step_displacement)
+                    contacts, areas = self._contacts_within(self.step_search(limit))
+                    continue
+                if disp > limit:
                     raise StepFailure(
                         f"largest displacement {disp:.3g} m exceeds the step limit "
-                        f"{self.max_step_displacement:.3g} m")
+                        f"{limit:.3g} m")
                 self.check_penetration(res)
             except StepFailure as exc:
                 reason = str(exc)

@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from engine import simulation
 from engine.contacts import OPEN
 from engine.model import AnalysisControls, Block, JointMaterial, Material, Model, PointLoad
 from engine.shapes import box, hexahedron, oriented_box
@@ -387,6 +388,8 @@ def test_cut_rock_mass_keeps_its_time_step(friction_deg: float) -> None:
     ("slide_off", 0.05, 1e10),       # a contact held closed in tension kept it on the edge
     # capped sliding contacts slipping back against their friction fed energy to the pile
     pytest.param("pile100", 0.01, 1e10, marks=[pytest.mark.slow, pytest.mark.ci]),
+    # a contact closing in a fast step, re-locked with an earlier cycle's slip, threw blocks
+    pytest.param("pile100", 0.003, 1e10, marks=[pytest.mark.slow, pytest.mark.ci]),
 ])
 def test_stability_cases_that_used_to_end_wrong(case: str, dt: float, penalty: float) -> None:
     """Cases of the stability map (benchmarks/stability.py) that once completed with a
@@ -408,3 +411,34 @@ def test_soft_penalty_is_reported_not_silent() -> None:
     stiff = run(incline_model(20.0, duration=0.3, dt=0.01))
     assert stiff.summary["warnings"] == []
 
+
+
+def test_step_that_outruns_its_predicted_search_is_detected_again(
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    """A cube thrown down onto a fixed slab with the search prediction made 1000× too
+    small: each step that moves further than predicted is searched again, wider, at the
+    same Δt, and the run ends exactly where runs searched at the model's full step limit
+    end (no contact lost, nothing tunnels)."""
+    def model() -> Model:
+        return Model(
+            blocks=[Block(box([-2, -2, -1], [3, 3, 0]), "slab", fixed=True),
+                    Block(box([0, 0, 0.02], [1, 1, 1.02]), "cube",
+                          velocity=np.array([0.3, 0, -1.0, 0, 0, 0]))],
+            joint_materials=[JointMaterial(np.radians(30.0))],
+            controls=AnalysisControls(duration=0.1, time_step=0.005, penalty=1e9))
+
+    monkeypatch.setattr(simulation, "SEARCH_SAFETY", 1e-3)
+    adaptive = Simulation(model())
+    searches: list[float] = []
+    detect = adaptive.detect
+    adaptive.detect = lambda search=None: searches.append(search) or detect(search)
+    fixed = Simulation(model())
+    fixed.adaptive_search = False
+    closed = 0
+    while adaptive.state.time < 0.1 - 1e-12:
+        res_a, res_f = adaptive.step(), fixed.step()
+        np.testing.assert_allclose(res_a.d, res_f.d, rtol=1e-9, atol=1e-12)
+        closed = max(closed, int(np.sum(res_a.contacts.mode != OPEN)))
+    assert len(searches) > adaptive.state.step  # steps were searched again
+    assert min(searches[1:]) < 0.1 * fixed.search_distance
+    assert closed == 4  # the cube hit the slab on its face
