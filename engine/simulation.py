@@ -487,6 +487,7 @@ class Simulation:
         # twice keeps its shear mode for the rest of the step (no flip-flop)
         switches = np.zeros(len(contacts), dtype=np.int64)
         reopenings = np.zeros(len(contacts), dtype=np.int64)
+        forced = np.zeros(len(contacts), dtype=bool)  # capped sliding contacts locked
         bi, bj = contacts.block_i, contacts.block_j
         n = contacts.normal
         d0 = contacts.gap
@@ -626,6 +627,17 @@ class Simulation:
                 # force: the friction would then push the blocks and create energy
                 driven = sliding & (switches >= MAX_SHEAR_SWITCHES) & (
                     along < -FRICTION_REVERSAL_RATIO * self.max_step_displacement)
+                if np.any(driven & ~forced):
+                    # Table 2: a slip that reverses locks the contact; the switch cap
+                    # had kept it sliding. Lock it (for the rest of the step, continuing
+                    # from its friction force) and iterate on, instead of cutting Δt
+                    lock = driven & ~forced
+                    mode = mode.copy()
+                    mode[lock] = LOCKED
+                    offset[lock] = (fric_mag[lock, None] / self.ks * tangent[lock]
+                                    - dr_t[lock] - shear0[lock])
+                    forced |= lock
+                    continue
                 if np.any(driven):
                     raise StepFailure(
                         f"open-close iteration did not settle: {int(driven.sum())} sliding "
