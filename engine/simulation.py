@@ -488,6 +488,7 @@ class Simulation:
         switches = np.zeros(len(contacts), dtype=np.int64)
         reopenings = np.zeros(len(contacts), dtype=np.int64)
         forced = np.zeros(len(contacts), dtype=bool)  # capped sliding contacts locked
+        released = np.zeros(len(contacts), dtype=bool)  # capped closed contacts opened
         bi, bj = contacts.block_i, contacts.block_j
         n = contacts.normal
         d0 = contacts.gap
@@ -619,6 +620,16 @@ class Simulation:
                 # together: that would be a bond the joint does not have
                 held = (mode != OPEN) & (reopenings >= MAX_REOPENINGS) & (
                     -self.kn * d1 < -allow_tension - self.kn * self.open_close_gap)
+                if np.any(held & ~released):
+                    # open them once more (the cap had kept them closed) and iterate on;
+                    # a contact held again after that stops the step
+                    free_now = held & ~released
+                    mode = mode.copy()
+                    mode[free_now] = OPEN
+                    dstar = np.where(free_now, 0.0, dstar)
+                    reopenings[free_now] = 0
+                    released |= free_now
+                    continue
                 if np.any(held):
                     raise StepFailure(
                         f"open-close iteration did not settle: {int(held.sum())} contact(s) "
