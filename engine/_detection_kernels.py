@@ -219,9 +219,10 @@ def sweep_pairs(lower: np.ndarray, upper: np.ndarray) -> np.ndarray:
 
 @njit(**_OPTS)
 def piece_pairs(block_pairs: np.ndarray, piece_block: np.ndarray, p_lo: np.ndarray,
-                p_hi: np.ndarray, inflate: float) -> tuple[np.ndarray, np.ndarray]:
+                p_hi: np.ndarray, inflate: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Piece pairs `(pa of block i, pb of block j)` of `block_pairs (k, 2)` (j < i) whose
-    boxes, inflated by `inflate`, overlap; in block pair order, then a, then b."""
+    boxes, each inflated by its block's `inflate (n_blocks,)`, overlap; in block pair
+    order, then a, then b."""
     nb = piece_block.max() + 1 if len(piece_block) else 0
     pstart = np.zeros(nb + 1, dtype=np.int64)
     for p in range(len(piece_block)):
@@ -237,12 +238,13 @@ def piece_pairs(block_pairs: np.ndarray, piece_block: np.ndarray, p_lo: np.ndarr
     m = 0
     for k in range(len(block_pairs)):
         bi, bj = block_pairs[k, 1], block_pairs[k, 0]
+        gi, gj = inflate[bi], inflate[bj]
         for a in range(pstart[bi], pstart[bi + 1]):
             for b in range(pstart[bj], pstart[bj + 1]):
                 ok = True
                 for j in range(3):
-                    if not (p_lo[a, j] - inflate <= p_hi[b, j] + inflate
-                            and p_lo[b, j] - inflate <= p_hi[a, j] + inflate):
+                    if not (p_lo[a, j] - gi <= p_hi[b, j] + gj
+                            and p_lo[b, j] - gj <= p_hi[a, j] + gi):
                         ok = False
                 if ok:
                     pa[m] = a
@@ -388,15 +390,44 @@ def _in_box(p: np.ndarray, lo: np.ndarray, hi: np.ndarray, r: float) -> bool:
 
 @njit(**_OPTS)
 def _edge_near(x: np.ndarray, e_vtx: np.ndarray, e_real: np.ndarray, e_flat: np.ndarray,
-               e: int, lo: np.ndarray, hi: np.ndarray, r: float) -> bool:
-    """Real convex edge `e` whose box meets the box `lo, hi` inflated by `r`."""
+               e: int, lo: np.ndarray, hi: np.ndarray, r: float, slab_n: np.ndarray,
+               slab_lo: float, slab_hi: float) -> bool:
+    """Real convex edge `e` whose box meets the box `lo, hi` inflated by `r` and that
+    reaches into the slab `slab_lo <= slab_n . x <= slab_hi`."""
     if not e_real[e] or e_flat[e]:
         return False
     a, b = x[e_vtx[e, 0]], x[e_vtx[e, 1]]
     for j in range(3):
         if not (min(a[j], b[j]) <= hi[j] + r and max(a[j], b[j]) >= lo[j] - r):
             return False
-    return True
+    ha, hb = _dot(slab_n, a), _dot(slab_n, b)
+    return min(ha, hb) <= slab_hi and max(ha, hb) >= slab_lo
+
+
+@njit(**_OPTS)
+def _separating_face(a_p: int, b_p: int, x: np.ndarray, pv_start: np.ndarray,
+                     pv_count: np.ndarray, pv_vtx: np.ndarray, f_start: np.ndarray,
+                     f_count: np.ndarray, f_normal: np.ndarray, f_offset: np.ndarray
+                     ) -> tuple[float, int, int]:
+    """The face plane of either convex piece with the largest clearance of the other
+    piece: `(clearance, face, side)`, side 0 when the face belongs to `b_p` (the vertices
+    of `a_p` lie at least `clearance` outside it), 1 when it belongs to `a_p`. Negative
+    clearance: the pieces overlap (by at least that much along every face normal)."""
+    best, best_f, best_side = -np.inf, -1, 0
+    for side in range(2):
+        xp, yp = (a_p, b_p) if side == 0 else (b_p, a_p)
+        for f in range(f_start[yp], f_start[yp] + f_count[yp]):
+            n = f_normal[f]
+            if n[0] == 0.0 and n[1] == 0.0 and n[2] == 0.0:
+                continue  # degenerate face
+            mn = np.inf
+            for pv in range(pv_start[xp], pv_start[xp] + pv_count[xp]):
+                mn = min(mn, _dot(x[pv_vtx[pv]], n) - f_offset[f])
+                if mn <= best:
+                    break
+            if mn > best:
+                best, best_f, best_side = mn, f, side
+    return best, best_f, best_side
 
 
 # --------------------------------------------------------------------------- output rows
@@ -471,14 +502,14 @@ def narrow_phase(pa: np.ndarray, pb: np.ndarray, x: np.ndarray, v_surface: np.nd
                  pv_surface: np.ndarray, pv_nb_real: np.ndarray, pv_faces: np.ndarray,
                  f_normal: np.ndarray, f_offset: np.ndarray, e_dir: np.ndarray,
                  e_in: np.ndarray, e_flat: np.ndarray, pv_dir: np.ndarray,
-                 p_lo: np.ndarray, p_hi: np.ndarray, search: float, snap: float,
+                 p_lo: np.ndarray, p_hi: np.ndarray, reach: np.ndarray, snap: float,
                  ang: float, parallel: float, entrance: float
                  ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Contacts of the piece pairs `(pa[k] of block i, pb[k] of block j)`, reduced to one
     per (piece pair, vertex) (v-f over v-e over v-v, then the largest gap) and without
-    edge-edge contacts deeper than the pair's shallowest face exit. Returns `(ri, rf,
-    cand)` (module docstring)."""
-    r = search + snap
+    edge-edge contacts deeper than the pair's shallowest face exit. A pair is searched
+    within `reach[i] + reach[j]` (m; `reach (n_blocks,)`). Returns `(ri, rf, cand)`
+    (module docstring)."""
     dmax, dfmax = pv_dir.shape[1], pv_faces.shape[1]
     cmax = max(2 + dfmax + dmax, 2 * dfmax + dmax * dmax)
     cand = np.zeros((cmax, 3))
@@ -511,20 +542,43 @@ def narrow_phase(pa: np.ndarray, pb: np.ndarray, x: np.ndarray, v_surface: np.nd
     vv_a = np.zeros(maxpv, dtype=np.int64)
     vv_b = np.zeros(maxpv, dtype=np.int64)
     vv_gap = np.zeros(maxpv)
+    slab_lo = np.zeros(2)
+    slab_hi = np.zeros(2)
     for pair in range(npairs):
         a_p, b_p = pa[pair], pb[pair]
         bi, bj = piece_block[a_p], piece_block[b_p]
+        search = reach[bi] + reach[bj]
+        r = search + snap
         na, nb_ = pv_count[a_p], pv_count[b_p]
         worst = 2 * (na + nb_) + na * nb_ + e_count[a_p] * e_count[b_p]
+        # the face plane (of either convex piece) that best separates the pair bounds
+        # every feature's distance from the other piece: a contact needs a feature within
+        # 2 r of it (r for v-e, v-v, e-e; v-f projections may overhang non-sharp edges by r)
+        sep, sep_f, sep_side = _separating_face(a_p, b_p, x, pv_start, pv_count, pv_vtx,
+                                                f_start, f_count, f_normal, f_offset)
+        far = 2.0 * r + snap
+        if sep > far:
+            continue
+        # slab along the separating normal where each piece's features may touch the other
+        for side in range(2):
+            if sep_f < 0:  # no face plane to go by (degenerate pieces): no slab
+                slab_lo[side], slab_hi[side] = -np.inf, np.inf
+            elif side == sep_side:  # the piece outside the face plane
+                slab_lo[side], slab_hi[side] = -np.inf, f_offset[sep_f] + far
+            else:  # the piece that owns the face
+                slab_lo[side], slab_hi[side] = f_offset[sep_f] + sep - far, np.inf
+        sep_n = f_normal[max(sep_f, 0)]
         ri, rf, out_c = _reserve(ri, rf, out_c, k, q, worst, (na + nb_) * cmax)
-        # surface vertices of each piece inside the other's inflated box
+        # surface vertices of each piece inside the other's inflated box and the slab
         for side in range(2):
             xp, yp = (a_p, b_p) if side == 0 else (b_p, a_p)
             for lv in range(pv_count[xp]):
                 pv = pv_start[xp] + lv
                 taken[side, lv] = False
-                near[side, lv] = pv_surface[pv] and _in_box(x[pv_vtx[pv]], p_lo[yp],
-                                                            p_hi[yp], r)
+                xv = x[pv_vtx[pv]]
+                h = _dot(sep_n, xv)
+                near[side, lv] = (pv_surface[pv] and slab_lo[side] <= h <= slab_hi[side]
+                                  and _in_box(xv, p_lo[yp], p_hi[yp], r))
         # ---- vertex-face
         for side in range(2):
             xp, yp = (a_p, b_p) if side == 0 else (b_p, a_p)
@@ -590,7 +644,8 @@ def narrow_phase(pa: np.ndarray, pb: np.ndarray, x: np.ndarray, v_surface: np.nd
             xp, yp = (a_p, b_p) if side == 0 else (b_p, a_p)
             ne = 0
             for e in range(e_start[yp], e_start[yp] + e_count[yp]):
-                if _edge_near(x, e_vtx, e_real, e_flat, e, p_lo[xp], p_hi[xp], r):
+                if _edge_near(x, e_vtx, e_real, e_flat, e, p_lo[xp], p_hi[xp], r, sep_n,
+                              slab_lo[1 - side], slab_hi[1 - side]):
                     ea_list[ne] = e
                     ne += 1
             if ne == 0:
@@ -628,12 +683,14 @@ def narrow_phase(pa: np.ndarray, pb: np.ndarray, x: np.ndarray, v_surface: np.nd
         # ---- crossing edge-edge
         na_e = 0
         for e in range(e_start[a_p], e_start[a_p] + e_count[a_p]):
-            if _edge_near(x, e_vtx, e_real, e_flat, e, p_lo[b_p], p_hi[b_p], r):
+            if _edge_near(x, e_vtx, e_real, e_flat, e, p_lo[b_p], p_hi[b_p], r, sep_n,
+                          slab_lo[0], slab_hi[0]):
                 ea_list[na_e] = e
                 na_e += 1
         nb_e = 0
         for e in range(e_start[b_p], e_start[b_p] + e_count[b_p]):
-            if _edge_near(x, e_vtx, e_real, e_flat, e, p_lo[a_p], p_hi[a_p], r):
+            if _edge_near(x, e_vtx, e_real, e_flat, e, p_lo[a_p], p_hi[a_p], r, sep_n,
+                          slab_lo[1], slab_hi[1]):
                 eb_list[nb_e] = e
                 nb_e += 1
         exit_gap = np.nan

@@ -317,12 +317,15 @@ def _scene(blocks: Sequence[Polyhedron]) -> _Scene:
 # --------------------------------------------------------------------------- public API
 
 
-def detect_contacts(blocks: Sequence[Polyhedron], search_distance: float,
+def detect_contacts(blocks: Sequence[Polyhedron], search_distance: float | np.ndarray,
                     active: np.ndarray | None = None,
                     tol: Tolerances = DEFAULT_TOLERANCES,
                     vertices: np.ndarray | None = None) -> ContactSet:
     """All generalized contact constraints between blocks within `search_distance` (m).
 
+    `search_distance` is one distance for every block pair, or each block's reach `(n,)`:
+    blocks a and b are then searched within `reach[a] + reach[b]` (how far each can move
+    in a step), so a fast block does not widen the search of the whole scene.
     Penetrating contacts (gap down to about -2 x search) are kept. `active (n,) bool`:
     pairs of two inactive (fixed) blocks are skipped. `block_i > block_j`, normal from j
     into i, key = (block i, feature i, block j, feature j) with :func:`feature_code`.
@@ -340,7 +343,13 @@ def detect_contacts(blocks: Sequence[Polyhedron], search_distance: float,
             raise ValueError(f"vertices has shape {x.shape}, expected one row per block "
                              "vertex")
     scale0 = float(np.ptp(x, axis=0).max())
-    search = float(search_distance)
+    if np.ndim(search_distance) == 0:
+        reach = np.full(len(blocks), 0.5 * float(search_distance))
+    else:
+        reach = np.ascontiguousarray(search_distance, dtype=float)
+        if reach.shape != (len(blocks),):
+            raise ValueError(f"search_distance has shape {reach.shape}, expected a number "
+                             "or one reach per block")
     snap = tol.length("feature_snap", scale0)
     parallel = float(tol.parallel)
     f_normal, f_offset, e_dir, e_in, e_flat, pv_dir, p_lo, p_hi = kern.geometry(
@@ -349,8 +358,8 @@ def detect_contacts(blocks: Sequence[Polyhedron], search_distance: float,
     # broad phase on block boxes, then on piece boxes
     blo = np.minimum.reduceat(p_lo, s.block_piece0, axis=0)
     bhi = np.maximum.reduceat(p_hi, s.block_piece0, axis=0)
-    inflate = 0.5 * search + snap
-    pairs = kern.sweep_pairs(blo - inflate, bhi + inflate)
+    inflate = reach + snap
+    pairs = kern.sweep_pairs(blo - inflate[:, None], bhi + inflate[:, None])
     if active is not None:
         act = np.asarray(active, dtype=bool)
         pairs = np.ascontiguousarray(pairs[act[pairs[:, 0]] | act[pairs[:, 1]]])
@@ -362,7 +371,7 @@ def detect_contacts(blocks: Sequence[Polyhedron], search_distance: float,
         s.f_count, s.e_start, s.e_count, s.pv_start, s.pv_count, s.f_vtx, s.f_nxt, s.f_edge,
         s.f_valid, s.f_local, s.f_tag, s.f_real, s.e_vtx, s.e_faces, s.e_local, s.e_real,
         s.pv_vtx, s.pv_surface, s.pv_nb_real, s.pv_faces, f_normal, f_offset, e_dir, e_in,
-        e_flat, pv_dir, p_lo, p_hi, search, snap, float(np.sqrt(2.0 * parallel)), parallel,
+        e_flat, pv_dir, p_lo, p_hi, reach, snap, float(np.sqrt(2.0 * parallel)), parallel,
         ENTRANCE_TOLERANCE)
     return _to_contact_set(ri, rf, cand, snap, parallel, len(blocks))
 

@@ -310,9 +310,10 @@ class Simulation:
         return vol, second
 
     # ------------------------------------------------------------------ contacts
-    def detect(self, search: float | None = None) -> ContactSet:
-        """Contacts within `search` m (default :attr:`search_distance`) at the start of the
-        step, with their joint materials."""
+    def detect(self, search: float | np.ndarray | None = None) -> ContactSet:
+        """Contacts within `search` m (default :attr:`search_distance`; or each block's
+        reach, see :func:`detect_contacts`) at the start of the step, with their joint
+        materials."""
         contacts = detect_contacts(self.polys0, self.search_distance if search is None
                                    else search, active=~self.fixed,
                                    vertices=self.current_vertices())
@@ -728,38 +729,54 @@ class Simulation:
         self.timings[phase] = self.timings.get(phase, 0.0) + now - since
         return now
 
-    def step_limit(self, dt: float) -> float:
-        """The displacement limit (m) of the next step: SEARCH_SAFETY × what the blocks'
-        velocities, gravity and loads predict for a step of `dt`, within [SEARCH_FLOOR, 1] ×
-        :attr:`max_step_displacement` (a step that moves further is detected again with a
-        larger search, at the same Δt)."""
+    def step_limit(self, dt: float) -> np.ndarray:
+        """Each block's displacement limit `(n,)` m for the next step: SEARCH_SAFETY × what
+        its velocity, gravity and loads predict for a step of `dt`, within [SEARCH_FLOOR,
+        1] × :attr:`max_step_displacement` (0 for fixed blocks). A block that moves further
+        is detected again with a larger limit, at the same Δt (:meth:`step`)."""
         if not self.adaptive_search:
-            return self.max_step_displacement
-        accel = float(np.linalg.norm(self.model.gravity))
+            return np.where(self.fixed, 0.0, self.max_step_displacement)
+        accel = np.full(self.n, float(np.linalg.norm(self.model.gravity)))
         if self.loads_ref:
             mass = self.density * self.mass_properties()[0]
-            accel += max(float(np.linalg.norm(f)) / mass[b] for b, _, f in self.loads_ref)
-        pred = self.max_point_displacement(self.state.velocity * dt) + accel * dt**2
-        return float(np.clip(SEARCH_SAFETY * pred, SEARCH_FLOOR * self.max_step_displacement,
-                             self.max_step_displacement))
+            for b, _, f in self.loads_ref:
+                accel[b] += float(np.linalg.norm(f)) / mass[b]
+        pred = self.point_displacements(self.state.velocity * dt) + accel * dt**2
+        limit = np.clip(SEARCH_SAFETY * pred, SEARCH_FLOOR * self.max_step_displacement,
+                        self.max_step_displacement)
+        return np.where(self.fixed, 0.0, limit)
 
-    def step_search(self, limit: float) -> float:
-        """Contact search distance (m) of a step whose points move at most `limit`: twice
-        it, and at least twice the deepest penetration the last step ended with (detection
-        keeps penetrations down to about -2 × search, so no contact is lost); the model's
-        full :attr:`search_distance` on the first step, whose overlaps are the user's. A
-        falling pile then looks for millimetres, not for 1 % of the model's size."""
+    def step_search(self, limit: np.ndarray) -> np.ndarray:
+        """Each block's contact search reach `(n,)` m for a step whose points move at most
+        `limit (n,)`: a block pair is searched within the sum of its two reaches. A
+        block's reach is its limit, and at least the deepest penetration its contacts
+        ended the last step with (detection keeps penetrations down to about -2 × the
+        pair's search, so no contact is lost); half the model's full
+        :attr:`search_distance` on the first step, whose overlaps are the user's. A
+        falling pile then looks for millimetres around each block, not for 1 % of the
+        model's size, and a fast block does not widen the search of the others."""
+        half = 0.5 * self.search_distance
         if not self.adaptive_search or self.last is None:
-            return self.search_distance
-        deepest = float(np.max(-self.last.gap1, initial=0.0))
-        return min(max(2.0 * limit, 2.0 * deepest), self.search_distance)
+            return np.full(self.n, half)
+        deepest = np.zeros(self.n)
+        gap = self.last.gap1
+        if len(gap):
+            depth = np.maximum(-gap, 0.0)
+            np.maximum.at(deepest, self.last.contacts.block_i, depth)
+            np.maximum.at(deepest, self.last.contacts.block_j, depth)
+        return np.minimum(np.maximum(limit, deepest), half)
 
-    def max_point_displacement(self, d: np.ndarray) -> float:
-        """Bound on the largest displacement of any block point in the step (m)."""
+    def point_displacements(self, d: np.ndarray) -> np.ndarray:
+        """Bound `(n,)` on the largest displacement of any point of each block in the
+        step (m) for block displacements `d (n, 12)`."""
         trans = np.linalg.norm(d[:, :3], axis=1)
         rot = np.linalg.norm(d[:, 3:6], axis=1) * self.radius
         strain = np.abs(d[:, 6:]).max(axis=1) * 2.0 * self.radius
-        return float((trans + rot + strain).max(initial=0.0))
+        return trans + rot + strain
+
+    def max_point_displacement(self, d: np.ndarray) -> float:
+        """Bound on the largest displacement of any block point in the step (m)."""
+        return float(self.point_displacements(d).max(initial=0.0))
 
     def advance(self, res: StepResult, dt: float) -> None:
         """Move the blocks (exact rotation), update velocities, stresses and contact memory."""
@@ -818,17 +835,21 @@ class Simulation:
         while dt >= c.min_time_step:
             try:
                 res = self.solve_step(contacts, dt, areas)
-                disp = self.max_point_displacement(res.d)
-                if disp > limit and limit < self.max_step_displacement:
-                    # moved further than predicted: search again, wider, same Δt
-                    limit = min(max(SEARCH_SAFETY * disp, 2.0 * limit),
-                                self.max_step_displacement)
+                disp = self.point_displacements(res.d)
+                over = disp > limit
+                wider = over & (limit < self.max_step_displacement)
+                if np.any(wider):
+                    # blocks moved further than predicted: search again, wider, same Δt
+                    limit = np.where(wider, np.minimum(np.maximum(SEARCH_SAFETY * disp,
+                                                                  2.0 * limit),
+                                                       self.max_step_displacement), limit)
                     contacts, areas = self._contacts_within(self.step_search(limit))
                     continue
-                if disp > limit:
+                if np.any(over):
+                    b = int(np.argmax(disp - limit))
                     raise StepFailure(
-                        f"largest displacement {disp:.3g} m exceeds the step limit "
-                        f"{limit:.3g} m")
+                        f"largest displacement {disp[b]:.3g} m (block {b}) exceeds the step "
+                        f"limit {limit[b]:.3g} m")
                 self.check_penetration(res)
             except StepFailure as exc:
                 reason = str(exc)
@@ -848,10 +869,11 @@ class Simulation:
             f"step {self.state.step + 1} at t = {self.state.time:.6g} s did not converge even "
             f"at the smallest time step {c.min_time_step:g} s: {reason}")
 
-    def _contacts_within(self, search: float) -> tuple[ContactSet, np.ndarray]:
-        """Contacts of the step within `search` m (depths made plausible) and their areas."""
+    def _contacts_within(self, reach: np.ndarray) -> tuple[ContactSet, np.ndarray]:
+        """Contacts of the step within the blocks' `reach (n,)` m (:meth:`step_search`;
+        depths made plausible) and their areas."""
         clock = _time.perf_counter()
-        contacts = self.detect(min(search, self.search_distance))
+        contacts = self.detect(reach)
         self.relaxed_contacts += self.plausible_gaps(contacts)
         self._tick("detection", clock)
         areas = (self.contact_areas(contacts) if self.needs_areas

@@ -440,5 +440,40 @@ def test_step_that_outruns_its_predicted_search_is_detected_again(
         np.testing.assert_allclose(res_a.d, res_f.d, rtol=1e-9, atol=1e-12)
         closed = max(closed, int(np.sum(res_a.contacts.mode != OPEN)))
     assert len(searches) > adaptive.state.step  # steps were searched again
-    assert min(searches[1:]) < 0.1 * fixed.search_distance
+    # a block pair is searched within the sum of its blocks' reaches
+    assert min(float(r.sum()) for r in searches[1:]) < 0.1 * fixed.search_distance
     assert closed == 4  # the cube hit the slab on its face
+
+
+def test_fast_block_widens_only_its_own_search_and_pushes_a_resting_one() -> None:
+    """Without gravity, a large cube flying at 8 m/s hits a small cube at rest face on.
+    Before the impact the small cube searches within the floor of its own limit, not
+    within the flying cube's; when it is thrown further than its own limit predicted,
+    the step is searched again, and the run ends exactly where a run searched at the
+    model's full step limit ends (no contact lost)."""
+    def model() -> Model:
+        return Model(
+            blocks=[Block(box([0, 0, 0], [0.3, 0.3, 0.3]), "resting"),
+                    Block(box([-1.2, -0.35, -0.35], [-0.2, 0.65, 0.65]), "flying",
+                          velocity=np.array([8.0, 0, 0, 0, 0, 0]))],
+            gravity=np.zeros(3),
+            controls=AnalysisControls(duration=0.06, time_step=0.002, penalty=1e9))
+
+    adaptive = Simulation(model())
+    fixed = Simulation(model())
+    fixed.adaptive_search = False
+    adaptive.step()
+    fixed.step()
+    reach = adaptive.step_search(adaptive.step_limit(adaptive.dt))
+    assert reach[1] > 10 * reach[0]  # the flying cube looks far, the resting one does not
+    searches: list[np.ndarray] = []
+    detect = adaptive.detect
+    adaptive.detect = lambda search=None: searches.append(search) or detect(search)
+    touched = False
+    while adaptive.state.time < 0.06 - 1e-12:
+        res_a, res_f = adaptive.step(), fixed.step()
+        np.testing.assert_allclose(res_a.d, res_f.d, rtol=1e-9, atol=1e-12)
+        touched |= bool(np.any(res_a.contacts.mode != OPEN))
+    assert touched
+    assert adaptive.state.centroid[0, 0] - 0.15 > 0.1  # the small cube was thrown
+    assert len(searches) > adaptive.state.step - 1  # the throw was searched again
