@@ -1,8 +1,10 @@
-"""Compiled per-contact kernels of the open-close iteration: contact forces into the global
-load vector, and the relative displacement of the contact points from the solution.
+"""Compiled per-contact kernels of the assembly and the open-close iteration: the unit
+contact terms and the block-sparse pattern of K (once per step), K's blocks for the modes of
+a cycle, contact forces into the global load vector, and the relative displacement of the
+contact points from the solution.
 
-Each open-close cycle runs both once; as numpy they were ~8 einsum / bincount calls per
-cycle (~10 cycles per step). Compiled with numba (cached on disk).
+Each open-close cycle runs several of them (~10 cycles per step); as numpy they were
+dozens of einsum / bincount / sparse calls per cycle. Compiled with numba (cached on disk).
 """
 
 from __future__ import annotations
@@ -52,4 +54,141 @@ def relative_displacement(x: np.ndarray, dof_map: np.ndarray, bi: np.ndarray,
                 xb = x[ib]
                 for r in range(3):
                     out[k, r] -= tj[k, r, q] * xb
+    return out
+
+
+@nb.njit(cache=True)
+def unit_contact_terms(ti: np.ndarray, tj: np.ndarray, normal: np.ndarray) -> np.ndarray:
+    """Unit-stiffness contact terms `(c, 6, d, d)`: `(n_ii, n_ij, n_jj, s_ii, s_ij, s_jj)`
+    for kn = 1 (P = n nᵀ) and ks = 1 (P = I − n nᵀ) (paper eqs. 24, 29); `ti`, `tj (c, 3,
+    d)`, `normal (c, 3)`. The contact's terms are `kn·n_* + ks·s_*`."""
+    c, _, d = ti.shape
+    out = np.empty((c, 6, d, d))
+    a = np.empty(d)
+    b = np.empty(d)
+    for k in range(c):
+        n0, n1, n2 = normal[k, 0], normal[k, 1], normal[k, 2]
+        for p in range(d):
+            a[p] = n0 * ti[k, 0, p] + n1 * ti[k, 1, p] + n2 * ti[k, 2, p]
+            b[p] = n0 * tj[k, 0, p] + n1 * tj[k, 1, p] + n2 * tj[k, 2, p]
+        for p in range(d):
+            for q in range(d):
+                nii = a[p] * a[q]
+                nij = -a[p] * b[q]
+                njj = b[p] * b[q]
+                out[k, 0, p, q] = nii
+                out[k, 1, p, q] = nij
+                out[k, 2, p, q] = njj
+                out[k, 3, p, q] = (ti[k, 0, p] * ti[k, 0, q] + ti[k, 1, p] * ti[k, 1, q]
+                                   + ti[k, 2, p] * ti[k, 2, q]) - nii
+                out[k, 4, p, q] = -(ti[k, 0, p] * tj[k, 0, q] + ti[k, 1, p] * tj[k, 1, q]
+                                    + ti[k, 2, p] * tj[k, 2, q]) - nij
+                out[k, 5, p, q] = (tj[k, 0, p] * tj[k, 0, q] + tj[k, 1, p] * tj[k, 1, q]
+                                   + tj[k, 2, p] * tj[k, 2, q]) - njj
+    return out
+
+
+@nb.njit(cache=True)
+def bsr_pattern(m: int, fi: np.ndarray, fj: np.ndarray
+                ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray,
+                           np.ndarray, np.ndarray]:
+    """Block-sparse pattern of K for `m` block rows and contacts between block rows `fi`,
+    `fj (c,)` (-1: fixed block). Returns `(indptr (m+1,), indices (nnz,), diag_slot (m,),
+    slot_ii, slot_jj, slot_ij, slot_ji (c,))`: the BSR block each contact term lands on
+    (-1 where it has none); every row holds its diagonal block, columns sorted."""
+    c = len(fi)
+    # distinct partners per row: sort the (row, column) keys of both orientations
+    keys = np.empty(2 * c, dtype=np.int64)
+    nk = 0
+    for k in range(c):
+        if fi[k] >= 0 and fj[k] >= 0 and fi[k] != fj[k]:
+            keys[nk] = fi[k] * m + fj[k]
+            keys[nk + 1] = fj[k] * m + fi[k]
+            nk += 2
+    allk = np.empty(nk + m, dtype=np.int64)
+    allk[:nk] = keys[:nk]
+    for r in range(m):
+        allk[nk + r] = r * m + r
+    allk = np.unique(allk)
+    nnz = len(allk)
+    indptr = np.zeros(m + 1, dtype=np.int64)
+    indices = np.empty(nnz, dtype=np.int64)
+    diag_slot = np.empty(m, dtype=np.int64)
+    for s in range(nnz):
+        r, col = allk[s] // m, allk[s] % m
+        indptr[r + 1] += 1
+        indices[s] = col
+        if r == col:
+            diag_slot[r] = s
+    for r in range(m):
+        indptr[r + 1] += indptr[r]
+    slot_ii = np.full(c, -1, dtype=np.int64)
+    slot_jj = np.full(c, -1, dtype=np.int64)
+    slot_ij = np.full(c, -1, dtype=np.int64)
+    slot_ji = np.full(c, -1, dtype=np.int64)
+    for k in range(c):
+        a, b = fi[k], fj[k]
+        if a >= 0:
+            slot_ii[k] = diag_slot[a]
+        if b >= 0:
+            slot_jj[k] = diag_slot[b]
+        if a >= 0 and b >= 0 and a != b:
+            slot_ij[k] = np.searchsorted(allk, a * m + b)
+            slot_ji[k] = np.searchsorted(allk, b * m + a)
+    return indptr, indices, diag_slot, slot_ii, slot_jj, slot_ij, slot_ji
+
+
+@nb.njit(cache=True)
+def fill_bsr(base: np.ndarray, unit: np.ndarray, slot_ii: np.ndarray, slot_jj: np.ndarray,
+             slot_ij: np.ndarray, slot_ji: np.ndarray, kn: np.ndarray,
+             ks: np.ndarray) -> np.ndarray:
+    """BSR data `(nnz, d, d)`: the block terms `base` plus every contact's
+    `kn·n_* + ks·s_*` of :func:`unit_contact_terms` on its blocks (the ji block gets the
+    transpose of the ij term). Contacts with kn = ks = 0 (open) add nothing."""
+    data = base.copy()
+    c = len(kn)
+    d = base.shape[1]
+    for k in range(c):
+        wn, ws = kn[k], ks[k]
+        if wn == 0.0 and ws == 0.0:
+            continue
+        si, sj, sij, sji = slot_ii[k], slot_jj[k], slot_ij[k], slot_ji[k]
+        for p in range(d):
+            for q in range(d):
+                if si >= 0:
+                    data[si, p, q] += wn * unit[k, 0, p, q] + ws * unit[k, 3, p, q]
+                if sj >= 0:
+                    data[sj, p, q] += wn * unit[k, 2, p, q] + ws * unit[k, 5, p, q]
+                if sij >= 0:
+                    v = wn * unit[k, 1, p, q] + ws * unit[k, 4, p, q]
+                    data[sij, p, q] += v
+                    data[sji, q, p] += v
+    return data
+
+
+@nb.njit(cache=True)
+def coupled_block_rows(m: int, slot_ij: np.ndarray, fi: np.ndarray, fj: np.ndarray,
+                       kn: np.ndarray, ks: np.ndarray) -> np.ndarray:
+    """Block rows `(r,)` (sorted) that share a contact with nonzero stiffness with another
+    free block: the rows conjugate gradients must iterate on."""
+    hit = np.zeros(m, dtype=np.bool_)
+    for k in range(len(kn)):
+        if slot_ij[k] >= 0 and (kn[k] != 0.0 or ks[k] != 0.0):
+            hit[fi[k]] = True
+            hit[fj[k]] = True
+    return np.flatnonzero(hit)
+
+
+@nb.njit(cache=True)
+def bsr_to_dense(indptr: np.ndarray, indices: np.ndarray, data: np.ndarray) -> np.ndarray:
+    """Dense `(m d, m d)` matrix of a BSR matrix given by its arrays."""
+    m = len(indptr) - 1
+    d = data.shape[1]
+    out = np.zeros((m * d, m * d))
+    for r in range(m):
+        for s in range(indptr[r], indptr[r + 1]):
+            col = indices[s]
+            for p in range(d):
+                for q in range(d):
+                    out[r * d + p, col * d + q] = data[s, p, q]
     return out

@@ -15,6 +15,14 @@ from dataclasses import dataclass
 import numpy as np
 import scipy.sparse as sp
 
+from engine._assembly_kernels import (
+    bsr_pattern,
+    bsr_to_dense,
+    coupled_block_rows,
+    fill_bsr,
+    unit_contact_terms,
+)
+
 # T(x) = T0 + x_t Tx + y_t Ty + z_t Tz (THEORY.md, paper eq. 11)
 _T0 = np.zeros((3, 12))
 _T0[0, 0] = _T0[1, 1] = _T0[2, 2] = 1.0
@@ -107,84 +115,48 @@ def contact_stiffness(
     return kii, kij, kjj
 
 
-def contact_parts(
-    ti: np.ndarray, tj: np.ndarray, normal: np.ndarray
-) -> tuple[np.ndarray, np.ndarray]:
-    """Unit-stiffness contact terms: `(normal, shear)` each `(3, c, d, d)` holding
-    `(kii, kij, kjj)` for kn = 1 (P = n nᵀ) and ks = 1 (P = I − n nᵀ); the contact's
-    terms are `kn·normal + ks·shear` (eqs. 24, 29). `ti`, `tj (c, 3, d)`."""
-    a = np.einsum("ck,ckj->cj", normal, ti)
-    b = np.einsum("ck,ckj->cj", normal, tj)
-    n_ii = np.einsum("ci,cj->cij", a, a)
-    n_ij = -np.einsum("ci,cj->cij", a, b)
-    n_jj = np.einsum("ci,cj->cij", b, b)
-    s_ii = np.einsum("cki,ckj->cij", ti, ti) - n_ii
-    s_ij = -np.einsum("cki,ckj->cij", ti, tj) - n_ij
-    s_jj = np.einsum("cki,ckj->cij", tj, tj) - n_jj
-    return np.stack([n_ii, n_ij, n_jj]), np.stack([s_ii, s_ij, s_jj])
-
-
 @dataclass
 class SystemPlan:
     """The global K of one step as a function of the contact modes.
 
     Everything that does not depend on which contacts are closed or locked (block terms,
-    unit contact terms, the block pairs and the sparsity pattern) is computed once per
-    step by :func:`plan_system`; each open-close cycle then only re-weights and sums.
+    unit contact terms, the block-sparse pattern and where each contact's terms land in
+    it) is computed once per step by :func:`plan_system`; each open-close cycle then only
+    re-weights and sums, in one compiled pass (:func:`fill_bsr`).
     """
 
     m: int
     d: int
-    dblk0: np.ndarray  # (m, d, d) block terms of the free blocks
-    diag_n: np.ndarray  # (k, d*d) unit normal terms landing on diagonal blocks
-    diag_s: np.ndarray  # (k, d*d) unit shear terms landing on diagonal blocks
-    diag_contact: np.ndarray  # (k,) contact of each diagonal term
-    diag_row: np.ndarray  # (k,) its block row
-    off_n: np.ndarray  # (q, d*d) unit normal terms of off-diagonal blocks (upper)
-    off_s: np.ndarray  # (q, d*d)
-    off_contact: np.ndarray  # (q,)
-    off_pair: np.ndarray  # (q,) its block pair
-    pair_a: np.ndarray  # (p,) block rows of each pair, pair_a < pair_b
-    pair_b: np.ndarray
-    order: np.ndarray  # BSR order of [diagonal, upper, lower] blocks
-    indices: np.ndarray
-    indptr: np.ndarray
+    base: np.ndarray  # (nnz, d, d) BSR data holding the block terms of the free blocks
+    indptr: np.ndarray  # (m + 1,) BSR row pointers
+    indices: np.ndarray  # (nnz,) BSR block columns
+    diag_slot: np.ndarray  # (m,) the diagonal block of each block row
+    unit: np.ndarray  # (c, 6, d, d) unit contact terms (unit_contact_terms)
+    fi: np.ndarray  # (c,) block row of block i of each contact (-1: fixed)
+    fj: np.ndarray  # (c,) block row of block j
+    slot_ii: np.ndarray  # (c,) BSR block of each contact term (-1: none)
+    slot_jj: np.ndarray
+    slot_ij: np.ndarray
+    slot_ji: np.ndarray
     dense: bool
-    diag_sum: sp.csr_matrix | None = None  # (m, k) sums diagonal terms (sparse path)
-    off_sum: sp.csr_matrix | None = None  # (p, q) sums off-diagonal terms (sparse path)
+    #: block rows coupled by the last matrix (:func:`coupled_block_rows`)
+    coupled: np.ndarray | None = None
 
     def matrix(self, kn: np.ndarray, ks: np.ndarray) -> tuple[sp.bsr_matrix | np.ndarray,
                                                                np.ndarray]:
         """K and its diagonal blocks `(m, d, d)` for per-contact normal and shear
-        stiffness `kn`, `ks (c,)` (0 where the contact is open / not locked)."""
-        m, d = self.m, self.d
-        wn, ws = kn[self.diag_contact, None], ks[self.diag_contact, None]
-        dterms = wn * self.diag_n + ws * self.diag_s
-        wn, ws = kn[self.off_contact, None], ks[self.off_contact, None]
-        oterms = wn * self.off_n + ws * self.off_s
+        stiffness `kn`, `ks (c,)` (0 where the contact is open / not locked); K is dense
+        for small systems, else BSR. Also sets :attr:`coupled`."""
+        kn = np.ascontiguousarray(kn, dtype=np.float64)
+        ks = np.ascontiguousarray(ks, dtype=np.float64)
+        data = fill_bsr(self.base, self.unit, self.slot_ii, self.slot_jj, self.slot_ij,
+                        self.slot_ji, kn, ks)
+        self.coupled = coupled_block_rows(self.m, self.slot_ij, self.fi, self.fj, kn, ks)
+        dblk = data[self.diag_slot]
         if self.dense:
-            dblk = self.dblk0.copy()
-            np.add.at(dblk, self.diag_row, dterms.reshape(-1, d, d))
-            off = np.zeros((len(self.pair_a), d, d))
-            np.add.at(off, self.off_pair, oterms.reshape(-1, d, d))
-            k4 = np.zeros((m, m, d, d))
-            r = np.arange(m)
-            k4[r, r] = dblk
-            k4[self.pair_a, self.pair_b] = off
-            k4[self.pair_b, self.pair_a] = np.transpose(off, (0, 2, 1))
-            return k4.transpose(0, 2, 1, 3).reshape(m * d, m * d), dblk
-        assert self.diag_sum is not None and self.off_sum is not None
-        dblk = self.dblk0 + np.asarray(self.diag_sum @ dterms).reshape(m, d, d)
-        off = np.asarray(self.off_sum @ oterms).reshape(-1, d, d)
-        data = np.concatenate([dblk, off, np.transpose(off, (0, 2, 1))])[self.order]
-        k = sp.bsr_matrix((data, self.indices, self.indptr), shape=(m * d, m * d))
-        return k, dblk
-
-
-def _incidence(rows: np.ndarray, n_rows: int) -> sp.csr_matrix:
-    """`(n_rows, len(rows))` 0/1 matrix that sums item k into row rows[k]."""
-    return sp.csr_matrix((np.ones(len(rows)), (rows, np.arange(len(rows)))),
-                         shape=(n_rows, len(rows)))
+            return bsr_to_dense(self.indptr, self.indices, data), dblk
+        n = self.m * self.d
+        return sp.bsr_matrix((data, self.indices, self.indptr), shape=(n, n)), dblk
 
 
 def plan_system(
@@ -197,34 +169,15 @@ def plan_system(
     of at most DENSE_MAX_UNKNOWNS unknowns, else block-sparse (BSR)."""
     d = diag.shape[1]
     m = int(row_of.max(initial=-1)) + 1
-    nparts, sparts = contact_parts(ti, tj, normal)
-    fi, fj = row_of[bi], row_of[bj]
-    a, b = fi >= 0, fj >= 0
-    ca, cb = np.flatnonzero(a), np.flatnonzero(b)
-    diag_rows = np.concatenate([fi[ca], fj[cb]])
-    diag_n = np.concatenate([nparts[0][ca], nparts[2][cb]]).reshape(-1, d * d)
-    diag_s = np.concatenate([sparts[0][ca], sparts[2][cb]]).reshape(-1, d * d)
-    both = np.flatnonzero(a & b)
-    pa, pb = fi[both], fj[both]
-    swap = pa > pb
-    tr = (0, 2, 1)
-    off_n = np.where(swap[:, None, None], np.transpose(nparts[1][both], tr), nparts[1][both])
-    off_s = np.where(swap[:, None, None], np.transpose(sparts[1][both], tr), sparts[1][both])
-    pa, pb = np.where(swap, pb, pa), np.where(swap, pa, pb)
-    pairs, inv = np.unique(pa * m + pb, return_inverse=True)
-    pair_a, pair_b = pairs // m, pairs % m
-    rows = np.concatenate([np.arange(m), pair_a, pair_b])
-    cols = np.concatenate([np.arange(m), pair_b, pair_a])
-    order = np.lexsort((cols, rows))
-    indptr = np.concatenate([[0], np.cumsum(np.bincount(rows, minlength=m))])
-    dense = m * d <= DENSE_MAX_UNKNOWNS
-    inv = inv.ravel()
-    return SystemPlan(
-        m=m, d=d, dblk0=diag[row_of >= 0], diag_n=diag_n, diag_s=diag_s,
-        diag_contact=np.concatenate([ca, cb]), diag_row=diag_rows,
-        off_n=off_n.reshape(-1, d * d), off_s=off_s.reshape(-1, d * d), off_contact=both,
-        off_pair=inv, pair_a=pair_a, pair_b=pair_b, order=order, indices=cols[order],
-        indptr=indptr, dense=dense,
-        diag_sum=None if dense else _incidence(diag_rows, m),
-        off_sum=None if dense else _incidence(inv, len(pairs)),
-    )
+    fi = np.ascontiguousarray(row_of[bi], dtype=np.int64)
+    fj = np.ascontiguousarray(row_of[bj], dtype=np.int64)
+    indptr, indices, diag_slot, sii, sjj, sij, sji = bsr_pattern(m, fi, fj)
+    base = np.zeros((len(indices), d, d))
+    base[diag_slot] = diag[row_of >= 0]
+    unit = unit_contact_terms(np.ascontiguousarray(ti, dtype=np.float64),
+                              np.ascontiguousarray(tj, dtype=np.float64),
+                              np.ascontiguousarray(normal, dtype=np.float64))
+    return SystemPlan(m=m, d=d, base=base, indptr=indptr, indices=indices,
+                      diag_slot=diag_slot, unit=unit, fi=fi, fj=fj, slot_ii=sii,
+                      slot_jj=sjj, slot_ij=sij, slot_ji=sji,
+                      dense=m * d <= DENSE_MAX_UNKNOWNS)

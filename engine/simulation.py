@@ -527,7 +527,7 @@ class Simulation:
                 k, kdiag = plan.matrix(self.kn * closed, self.ks * locked)
                 clock = self._tick("assembly", clock)
                 try:
-                    solver = make_solver(k, nd, kdiag, jacobi)
+                    solver = make_solver(k, nd, kdiag, jacobi, plan.coupled)
                 except SolveError as exc:
                     raise StepFailure(str(exc)) from exc
                 solver_key = key

@@ -92,14 +92,15 @@ class BlockJacobi:
 
 def make_solver(
     k: sp.spmatrix, block: int = 6, diag_blocks: np.ndarray | None = None,
-    jacobi: BlockJacobi | None = None,
+    jacobi: BlockJacobi | None = None, coupled: np.ndarray | None = None,
 ) -> Callable[[np.ndarray, np.ndarray | None], np.ndarray]:
     """A function `solve(F, x0) -> D` for this K, factorized or CG by size.
 
     The factorization (or preconditioner) is built once and reused for every
     right-hand side of the open-close iteration that keeps the same K. `diag_blocks
     (n / block, block, block)`, when given, are K's diagonal blocks (saves extracting them);
-    `jacobi` keeps the preconditioner of the previous K to update it.
+    `jacobi` keeps the preconditioner of the previous K to update it; `coupled`, when
+    given, are the block rows with an off-diagonal block (:func:`coupled_rows`).
     """
     n = k.shape[0]
     if n == 0:
@@ -124,7 +125,7 @@ def make_solver(
     pre = (jacobi or block_jacobi)(diag_blocks)
     kc = k if sp.isspmatrix_bsr(k) and k.blocksize == (block, block) else sp.bsr_matrix(
         k, blocksize=(block, block))
-    rows = coupled_rows(kc)
+    rows = coupled_rows(kc) if coupled is None else coupled
 
     def cg(f: np.ndarray, x0: np.ndarray | None = None) -> np.ndarray:
         x, iters = pcg(kc, f, pre, x0, CG_RTOL, 10 * n, rows)

@@ -8,6 +8,7 @@ import pytest
 import scipy.sparse as sp
 
 from engine import assembly as asm
+from engine._assembly_kernels import unit_contact_terms
 from engine.solver import (
     BlockJacobi,
     SolveError,
@@ -51,15 +52,16 @@ def _brute_force(row_of, diag, bi, bj, ti, tj, nrm, kn, ks) -> np.ndarray:
     return ref
 
 
-def test_unit_contact_parts_combine_to_the_spring_matrices() -> None:
+def test_unit_contact_terms_combine_to_the_spring_matrices() -> None:
     rng = np.random.default_rng(3)
     *_, ti, tj, nrm = _random_contacts(rng)
     kn, ks = rng.uniform(0, 5, len(nrm)), rng.uniform(0, 5, len(nrm))
-    normal, shear = asm.contact_parts(ti, tj, nrm)
+    unit = unit_contact_terms(ti, tj, nrm)
     direct = asm.contact_stiffness(ti, tj, nrm, kn, ks)
     for part in range(3):
-        np.testing.assert_allclose(kn[:, None, None] * normal[part]
-                                   + ks[:, None, None] * shear[part], direct[part], atol=1e-12)
+        np.testing.assert_allclose(kn[:, None, None] * unit[:, part]
+                                   + ks[:, None, None] * unit[:, 3 + part], direct[part],
+                                   atol=1e-12)
 
 
 @pytest.mark.parametrize("dense", [True, False])
