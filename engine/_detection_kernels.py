@@ -389,45 +389,62 @@ def _in_box(p: np.ndarray, lo: np.ndarray, hi: np.ndarray, r: float) -> bool:
 
 
 @njit(**_OPTS)
-def _edge_near(x: np.ndarray, e_vtx: np.ndarray, e_real: np.ndarray, e_flat: np.ndarray,
-               e: int, lo: np.ndarray, hi: np.ndarray, r: float, slab_n: np.ndarray,
-               slab_lo: float, slab_hi: float) -> bool:
-    """Real convex edge `e` whose box meets the box `lo, hi` inflated by `r` and that
-    reaches into the slab `slab_lo <= slab_n . x <= slab_hi`."""
-    if not e_real[e] or e_flat[e]:
-        return False
-    a, b = x[e_vtx[e, 0]], x[e_vtx[e, 1]]
-    for j in range(3):
-        if not (min(a[j], b[j]) <= hi[j] + r and max(a[j], b[j]) >= lo[j] - r):
-            return False
-    ha, hb = _dot(slab_n, a), _dot(slab_n, b)
-    return min(ha, hb) <= slab_hi and max(ha, hb) >= slab_lo
+def _near_edges(p: int, side: int, other: int, x: np.ndarray, e_start: np.ndarray,
+                e_count: np.ndarray, e_vtx: np.ndarray, e_slot: np.ndarray,
+                e_real: np.ndarray, e_flat: np.ndarray, vbound: np.ndarray, within: float,
+                p_lo: np.ndarray, p_hi: np.ndarray, r: float, out: np.ndarray) -> int:
+    """Real convex edges of piece `p` (on `side`) with a distance bound `vbound[side]` of
+    at most `within` at one of their ends and whose box meets the box of piece `other`
+    inflated by `r`, into `out`; returns how many."""
+    n = 0
+    lo, hi = p_lo[other], p_hi[other]
+    for e in range(e_start[p], e_start[p] + e_count[p]):
+        if not e_real[e] or e_flat[e]:
+            continue
+        if not (vbound[side, e_slot[e, 0]] <= within or vbound[side, e_slot[e, 1]] <= within):
+            continue
+        a, b = x[e_vtx[e, 0]], x[e_vtx[e, 1]]
+        ok = True
+        for j in range(3):
+            if not (min(a[j], b[j]) <= hi[j] + r and max(a[j], b[j]) >= lo[j] - r):
+                ok = False
+                break
+        if ok:
+            out[n] = e
+            n += 1
+    return n
 
 
 @njit(**_OPTS)
 def _separating_face(a_p: int, b_p: int, x: np.ndarray, pv_start: np.ndarray,
                      pv_count: np.ndarray, pv_vtx: np.ndarray, f_start: np.ndarray,
-                     f_count: np.ndarray, f_normal: np.ndarray, f_offset: np.ndarray
-                     ) -> tuple[float, int, int]:
+                     f_count: np.ndarray, f_real: np.ndarray, f_normal: np.ndarray,
+                     f_offset: np.ndarray) -> tuple[float, int, int, float]:
     """The face plane of either convex piece with the largest clearance of the other
-    piece: `(clearance, face, side)`, side 0 when the face belongs to `b_p` (the vertices
-    of `a_p` lie at least `clearance` outside it), 1 when it belongs to `a_p`. Negative
-    clearance: the pieces overlap (by at least that much along every face normal)."""
-    best, best_f, best_side = -np.inf, -1, 0
+    piece: `(clearance, face, side, exit)`, side 0 when the face belongs to `b_p` (the
+    vertices of `a_p` lie at least `clearance` outside it), 1 when it belongs to `a_p`.
+    Negative clearance: the pieces overlap (by at least that much along every face
+    normal). `exit` is the same maximum over the real (block) faces only: how far the
+    pieces must move apart to separate through a block face."""
+    best, best_f, best_side, best_real = -np.inf, -1, 0, -np.inf
     for side in range(2):
         xp, yp = (a_p, b_p) if side == 0 else (b_p, a_p)
         for f in range(f_start[yp], f_start[yp] + f_count[yp]):
             n = f_normal[f]
             if n[0] == 0.0 and n[1] == 0.0 and n[2] == 0.0:
                 continue  # degenerate face
+            real = f_real[f]
+            stop = best_real if real else best
             mn = np.inf
             for pv in range(pv_start[xp], pv_start[xp] + pv_count[xp]):
                 mn = min(mn, _dot(x[pv_vtx[pv]], n) - f_offset[f])
-                if mn <= best:
+                if mn <= stop:
                     break
+            if real and mn > best_real:
+                best_real = mn
             if mn > best:
                 best, best_f, best_side = mn, f, side
-    return best, best_f, best_side
+    return best, best_f, best_side, best_real
 
 
 # --------------------------------------------------------------------------- output rows
@@ -498,7 +515,8 @@ def narrow_phase(pa: np.ndarray, pb: np.ndarray, x: np.ndarray, v_surface: np.nd
                  f_vtx: np.ndarray, f_nxt: np.ndarray, f_edge: np.ndarray,
                  f_valid: np.ndarray, f_local: np.ndarray, f_tag: np.ndarray,
                  f_real: np.ndarray, e_vtx: np.ndarray, e_faces: np.ndarray,
-                 e_local: np.ndarray, e_real: np.ndarray, pv_vtx: np.ndarray,
+                 e_local: np.ndarray, e_real: np.ndarray, e_slot: np.ndarray,
+                 pv_vtx: np.ndarray,
                  pv_surface: np.ndarray, pv_nb_real: np.ndarray, pv_faces: np.ndarray,
                  f_normal: np.ndarray, f_offset: np.ndarray, e_dir: np.ndarray,
                  e_in: np.ndarray, e_flat: np.ndarray, pv_dir: np.ndarray,
@@ -542,8 +560,10 @@ def narrow_phase(pa: np.ndarray, pb: np.ndarray, x: np.ndarray, v_surface: np.nd
     vv_a = np.zeros(maxpv, dtype=np.int64)
     vv_b = np.zeros(maxpv, dtype=np.int64)
     vv_gap = np.zeros(maxpv)
-    slab_lo = np.zeros(2)
-    slab_hi = np.zeros(2)
+    slab_s = np.zeros(2)
+    slab_c = np.zeros(2)
+    close = np.zeros((2, maxpv), dtype=np.bool_)
+    vbound = np.zeros((2, maxpv))
     for pair in range(npairs):
         a_p, b_p = pa[pair], pb[pair]
         bi, bj = piece_block[a_p], piece_block[b_p]
@@ -551,34 +571,46 @@ def narrow_phase(pa: np.ndarray, pb: np.ndarray, x: np.ndarray, v_surface: np.nd
         r = search + snap
         na, nb_ = pv_count[a_p], pv_count[b_p]
         worst = 2 * (na + nb_) + na * nb_ + e_count[a_p] * e_count[b_p]
-        # the face plane (of either convex piece) that best separates the pair bounds
-        # every feature's distance from the other piece: a contact needs a feature within
-        # 2 r of it (r for v-e, v-v, e-e; v-f projections may overhang non-sharp edges by r)
-        sep, sep_f, sep_side = _separating_face(a_p, b_p, x, pv_start, pv_count, pv_vtx,
-                                                f_start, f_count, f_normal, f_offset)
-        far = 2.0 * r + snap
+        # the face plane (of either convex piece) that best separates the pair gives each
+        # feature a lower bound on its distance from the other piece: a vertex-face contact
+        # needs a vertex within 2 r of it (its projection may overhang a non-sharp edge by
+        # r), the other types a feature within r
+        sep, sep_f, sep_side, exit_gap = _separating_face(
+            a_p, b_p, x, pv_start, pv_count, pv_vtx, f_start, f_count, f_real, f_normal,
+            f_offset)
+        far, close_by = 2.0 * r + snap, r + snap
         if sep > far:
             continue
-        # slab along the separating normal where each piece's features may touch the other
+        # bound of a feature at height h along the face normal: s (h - offset) + c
         for side in range(2):
-            if sep_f < 0:  # no face plane to go by (degenerate pieces): no slab
-                slab_lo[side], slab_hi[side] = -np.inf, np.inf
+            if sep_f < 0:  # no face plane to go by (degenerate pieces): no bound
+                slab_s[side], slab_c[side] = 0.0, -np.inf
             elif side == sep_side:  # the piece outside the face plane
-                slab_lo[side], slab_hi[side] = -np.inf, f_offset[sep_f] + far
+                slab_s[side], slab_c[side] = 1.0, 0.0
             else:  # the piece that owns the face
-                slab_lo[side], slab_hi[side] = f_offset[sep_f] + sep - far, np.inf
+                slab_s[side], slab_c[side] = -1.0, sep
         sep_n = f_normal[max(sep_f, 0)]
+        sep_o = f_offset[max(sep_f, 0)]
         ri, rf, out_c = _reserve(ri, rf, out_c, k, q, worst, (na + nb_) * cmax)
-        # surface vertices of each piece inside the other's inflated box and the slab
+        # surface vertices of each piece inside the other's inflated box, within 2 r (near,
+        # for vertex-face) or r (close, for vertex-edge and vertex-vertex) by the bound
         for side in range(2):
             xp, yp = (a_p, b_p) if side == 0 else (b_p, a_p)
             for lv in range(pv_count[xp]):
                 pv = pv_start[xp] + lv
                 taken[side, lv] = False
                 xv = x[pv_vtx[pv]]
-                h = _dot(sep_n, xv)
-                near[side, lv] = (pv_surface[pv] and slab_lo[side] <= h <= slab_hi[side]
+                bound = slab_s[side] * (_dot(sep_n, xv) - sep_o) + slab_c[side]
+                vbound[side, lv] = bound
+                near[side, lv] = (pv_surface[pv] and bound <= far
                                   and _in_box(xv, p_lo[yp], p_hi[yp], r))
+                close[side, lv] = near[side, lv] and bound <= close_by
+        # real convex edges of each piece within r by the bound (at one of its ends: the
+        # bound is linear along the edge) whose box meets the other's inflated box
+        na_e = _near_edges(a_p, 0, b_p, x, e_start, e_count, e_vtx, e_slot, e_real, e_flat,
+                           vbound, close_by, p_lo, p_hi, r, ea_list)
+        nb_e = _near_edges(b_p, 1, a_p, x, e_start, e_count, e_vtx, e_slot, e_real, e_flat,
+                           vbound, close_by, p_lo, p_hi, r, eb_list)
         # ---- vertex-face
         for side in range(2):
             xp, yp = (a_p, b_p) if side == 0 else (b_p, a_p)
@@ -642,30 +674,27 @@ def narrow_phase(pa: np.ndarray, pb: np.ndarray, x: np.ndarray, v_surface: np.nd
         # ---- vertex-edge (vertices without a vertex-face contact)
         for side in range(2):
             xp, yp = (a_p, b_p) if side == 0 else (b_p, a_p)
-            ne = 0
-            for e in range(e_start[yp], e_start[yp] + e_count[yp]):
-                if _edge_near(x, e_vtx, e_real, e_flat, e, p_lo[xp], p_hi[xp], r, sep_n,
-                              slab_lo[1 - side], slab_hi[1 - side]):
-                    ea_list[ne] = e
-                    ne += 1
+            edges, ne = (eb_list, nb_e) if side == 0 else (ea_list, na_e)
             if ne == 0:
                 continue
             for lv in range(pv_count[xp]):
-                if not near[side, lv] or taken[side, lv]:
+                if not close[side, lv] or taken[side, lv]:
                     continue
                 pv = pv_start[xp] + lv
                 xv = x[pv_vtx[pv]]
                 best_e, best_gap = -1, -np.inf
                 for ie in range(ne):
+                    if not _within_segment(xv, x, e_vtx, e_dir, edges[ie], r):
+                        continue
                     gap, nc, best = _vertex_edge_plane(
-                        ea_list[ie], pv, x, v_surface, e_vtx, e_dir, e_faces, e_in, f_normal,
+                        edges[ie], pv, x, v_surface, e_vtx, e_dir, e_faces, e_in, f_normal,
                         f_tag, pv_vtx, pv_faces, pv_dir, pv_nb_real, r, snap, ang, parallel,
                         entrance, cand, cvalid, cface, ctag, adm, adm_gap, dy, ry, proj, delta)
                     if best >= 0 and gap > best_gap:
                         best_e, best_gap = ie, gap
                 if best_e < 0:
                     continue
-                e = ea_list[best_e]
+                e = edges[best_e]
                 gap, nc, best = _vertex_edge_plane(
                     e, pv, x, v_surface, e_vtx, e_dir, e_faces, e_in, f_normal, f_tag, pv_vtx,
                     pv_faces, pv_dir, pv_nb_real, r, snap, ang, parallel, entrance, cand,
@@ -681,19 +710,6 @@ def narrow_phase(pa: np.ndarray, pb: np.ndarray, x: np.ndarray, v_surface: np.nd
                 k += 1
                 taken[side, lv] = True
         # ---- crossing edge-edge
-        na_e = 0
-        for e in range(e_start[a_p], e_start[a_p] + e_count[a_p]):
-            if _edge_near(x, e_vtx, e_real, e_flat, e, p_lo[b_p], p_hi[b_p], r, sep_n,
-                          slab_lo[0], slab_hi[0]):
-                ea_list[na_e] = e
-                na_e += 1
-        nb_e = 0
-        for e in range(e_start[b_p], e_start[b_p] + e_count[b_p]):
-            if _edge_near(x, e_vtx, e_real, e_flat, e, p_lo[a_p], p_hi[a_p], r, sep_n,
-                          slab_lo[1], slab_hi[1]):
-                eb_list[nb_e] = e
-                nb_e += 1
-        exit_gap = np.nan
         for i1 in range(na_e):
             e1 = ea_list[i1]
             a1, b1 = x[e_vtx[e1, 0]], x[e_vtx[e1, 1]]
@@ -744,13 +760,6 @@ def narrow_phase(pa: np.ndarray, pb: np.ndarray, x: np.ndarray, v_surface: np.nd
                 if gap < -snap:
                     # deeper than the shallowest face exit of the pair: edges that passed
                     # each other sideways in an overlap of corners; the face is the exit
-                    if np.isnan(exit_gap):
-                        exit_gap = max(_face_separation(a_p, b_p, x, pv_start, pv_count,
-                                                        pv_vtx, f_start, f_count, f_real,
-                                                        f_normal, f_offset),
-                                       _face_separation(b_p, a_p, x, pv_start, pv_count,
-                                                        pv_vtx, f_start, f_count, f_real,
-                                                        f_normal, f_offset))
                     if not gap >= exit_gap - snap:
                         continue
                 _emit(ri, rf, k, bi, bj, EDGE_EDGE,
@@ -761,12 +770,12 @@ def narrow_phase(pa: np.ndarray, pb: np.ndarray, x: np.ndarray, v_surface: np.nd
         # ---- vertex-vertex (vertices without a vertex-face or vertex-edge contact)
         m = 0
         for la in range(na):
-            if not near[0, la] or taken[0, la]:
+            if not close[0, la] or taken[0, la]:
                 continue
             va = pv_start[a_p] + la
             best_b, best_gap = -1, -np.inf
             for lb in range(nb_):
-                if not near[1, lb] or taken[1, lb]:
+                if not close[1, lb] or taken[1, lb]:
                     continue
                 vb = pv_start[b_p] + lb
                 gap, nc, best = _vertex_vertex_plane(
@@ -821,6 +830,21 @@ def _copy_unique(cand: np.ndarray, adm: np.ndarray, nc: int, parallel: float,
                 out[q, j] = s * cand[c, j]
             q += 1
     return q
+
+
+@njit(**_OPTS)
+def _within_segment(p: np.ndarray, x: np.ndarray, e_vtx: np.ndarray, e_dir: np.ndarray,
+                    e: int, r: float) -> bool:
+    """Point `p` is within about `r` of edge `e` (a cheap test before
+    :func:`_vertex_edge_plane`, which decides exactly)."""
+    a, u = x[e_vtx[e, 0]], e_dir[e]
+    uu = _dot(u, u)
+    t = ((p[0] - a[0]) * u[0] + (p[1] - a[1]) * u[1] + (p[2] - a[2]) * u[2]) / uu
+    t = min(max(t, 0.0), 1.0)
+    d0 = p[0] - a[0] - t * u[0]
+    d1 = p[1] - a[1] - t * u[1]
+    d2 = p[2] - a[2] - t * u[2]
+    return d0 * d0 + d1 * d1 + d2 * d2 < 1.0001 * r * r
 
 
 @njit(**_OPTS)
@@ -897,24 +921,6 @@ def _vertex_vertex_plane(va: int, vb: int, x: np.ndarray, pv_vtx: np.ndarray,
     if best < 0:
         return -np.inf, nc, -1
     return _dot(delta, cand[best]), nc, best
-
-
-@njit(**_OPTS)
-def _face_separation(xp: int, yp: int, x: np.ndarray, pv_start: np.ndarray,
-                     pv_count: np.ndarray, pv_vtx: np.ndarray, f_start: np.ndarray,
-                     f_count: np.ndarray, f_real: np.ndarray, f_normal: np.ndarray,
-                     f_offset: np.ndarray) -> float:
-    """Max over real faces f of piece `yp` of min over vertices a of piece `xp` of the
-    signed distance of a from f: how far `xp` must move to exit `yp` through a face."""
-    out = -np.inf
-    for f in range(f_start[yp], f_start[yp] + f_count[yp]):
-        if not f_real[f]:
-            continue
-        mn = np.inf
-        for pv in range(pv_start[xp], pv_start[xp] + pv_count[xp]):
-            mn = min(mn, _dot(x[pv_vtx[pv]], f_normal[f]) - f_offset[f])
-        out = max(out, mn)
-    return out
 
 
 @njit(**_OPTS)

@@ -88,6 +88,7 @@ class _PieceTopo:
     edge_faces: np.ndarray  # (e, 2) piece face ids
     edge_real: np.ndarray  # (e,) both faces are real block faces
     verts: np.ndarray  # (k,) block vertex ids of the piece
+    edge_slots: np.ndarray  # (e, 2) the edges' ends as indices into verts
     vert_surface: np.ndarray  # (k,) vertex is a surface vertex of the block
     vert_nb: np.ndarray  # (k, D) neighbour vertex ids along piece edges (pad -1)
     vert_nb_real: np.ndarray  # (k, D) that edge is real
@@ -147,6 +148,7 @@ def _piece_topology(piece: ConvexPiece, block: Polyhedron) -> _PieceTopo:
                 vf[slot[v]].append(f)
     topo = _PieceTopo(
         fv, fn, fe, valid, surface, edges, edge_faces, edge_real, verts,
+        np.searchsorted(verts, edges).astype(_I64),
         np.isin(verts, block.surface_vertex_ids), _pad_rows(nb),
         _pad_rows(nb_real, 0).astype(bool), _pad_rows(vf),
     )
@@ -210,6 +212,7 @@ class _Scene:
     e_faces: np.ndarray  # (E, 2) global faces
     e_local: np.ndarray
     e_real: np.ndarray
+    e_slot: np.ndarray  # (E, 2) the edge's ends as piece vertex slots (0..pv_count)
     pv_vtx: np.ndarray  # (V,) g
     pv_surface: np.ndarray
     pv_nb: np.ndarray  # (V, D) g, -1 pad
@@ -222,7 +225,7 @@ def _build_scene(blocks: Sequence[Polyhedron]) -> _Scene:
     vsurf, vloc, vblk = [], [], []
     pblock, plocal = [], []
     fv, fn, fe, fval, floc, ftag, freal = [], [], [], [], [], [], []
-    ev, ef, eloc, ereal = [], [], [], []
+    ev, ef, eloc, ereal, eslot = [], [], [], [], []
     pvv, pvs, pvnb, pvnbr, pvf = [], [], [], [], []
     voffs, foffs, eoffs = [], [], []
     f_count, e_count, pv_count = [], [], []
@@ -251,6 +254,7 @@ def _build_scene(blocks: Sequence[Polyhedron]) -> _Scene:
             ef.append(t.edge_faces + fo)
             eloc.append(np.arange(ne, dtype=_I64))
             ereal.append(t.edge_real)
+            eslot.append(t.edge_slots)
             pvv.append(t.verts + vo)
             pvs.append(t.vert_surface)
             pvnb.append(t.vert_nb)
@@ -287,7 +291,7 @@ def _build_scene(blocks: Sequence[Polyhedron]) -> _Scene:
         f_local=np.concatenate(floc), f_tag=np.concatenate(ftag).astype(_I64),
         f_real=np.concatenate(freal),
         e_vtx=np.concatenate(ev), e_faces=np.concatenate(ef), e_local=np.concatenate(eloc),
-        e_real=np.concatenate(ereal),
+        e_real=np.concatenate(ereal), e_slot=np.concatenate(eslot),
         pv_vtx=np.concatenate(pvv), pv_surface=np.concatenate(pvs),
         pv_nb=_cat_padded(pvnb, -1, voffs), pv_nb_real=_cat_padded(pvnbr, False),
         pv_faces=_cat_padded(pvf, -1, foffs),
@@ -342,7 +346,6 @@ def detect_contacts(blocks: Sequence[Polyhedron], search_distance: float | np.nd
         if x.shape != (s.nv, 3):
             raise ValueError(f"vertices has shape {x.shape}, expected one row per block "
                              "vertex")
-    scale0 = float(np.ptp(x, axis=0).max())
     if np.ndim(search_distance) == 0:
         reach = np.full(len(blocks), 0.5 * float(search_distance))
     else:
@@ -350,11 +353,12 @@ def detect_contacts(blocks: Sequence[Polyhedron], search_distance: float | np.nd
         if reach.shape != (len(blocks),):
             raise ValueError(f"search_distance has shape {reach.shape}, expected a number "
                              "or one reach per block")
-    snap = tol.length("feature_snap", scale0)
     parallel = float(tol.parallel)
     f_normal, f_offset, e_dir, e_in, e_flat, pv_dir, p_lo, p_hi = kern.geometry(
         x, s.f_vtx, s.f_nxt, s.e_vtx, s.e_faces, s.pv_vtx, s.pv_nb, s.pv_start, s.pv_count,
         parallel)
+    # the scene's size from the piece boxes (every vertex belongs to a piece)
+    snap = tol.length("feature_snap", float((p_hi.max(axis=0) - p_lo.min(axis=0)).max()))
     # broad phase on block boxes, then on piece boxes
     blo = np.minimum.reduceat(p_lo, s.block_piece0, axis=0)
     bhi = np.maximum.reduceat(p_hi, s.block_piece0, axis=0)
@@ -370,7 +374,7 @@ def detect_contacts(blocks: Sequence[Polyhedron], search_distance: float | np.nd
         pa, pb, x, s.v_surface, s.v_local, s.piece_block, s.piece_local, s.f_start,
         s.f_count, s.e_start, s.e_count, s.pv_start, s.pv_count, s.f_vtx, s.f_nxt, s.f_edge,
         s.f_valid, s.f_local, s.f_tag, s.f_real, s.e_vtx, s.e_faces, s.e_local, s.e_real,
-        s.pv_vtx, s.pv_surface, s.pv_nb_real, s.pv_faces, f_normal, f_offset, e_dir, e_in,
+        s.e_slot, s.pv_vtx, s.pv_surface, s.pv_nb_real, s.pv_faces, f_normal, f_offset, e_dir, e_in,
         e_flat, pv_dir, p_lo, p_hi, reach, snap, float(np.sqrt(2.0 * parallel)), parallel,
         ENTRANCE_TOLERANCE)
     return _to_contact_set(ri, rf, cand, snap, parallel, len(blocks))
