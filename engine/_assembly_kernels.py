@@ -1,7 +1,6 @@
 """Compiled per-contact kernels of the assembly and the open-close iteration: the unit
 contact terms and the block-sparse pattern of K (once per step), K's blocks for the modes of
-a cycle, contact forces into the global load vector, and the relative displacement of the
-contact points from the solution.
+a cycle, and the relative displacement of the contact points from the solution.
 
 Each open-close cycle runs several of them (~10 cycles per step); as numpy they were
 dozens of einsum / bincount / sparse calls per cycle. Compiled with numba (cached on disk).
@@ -11,27 +10,6 @@ from __future__ import annotations
 
 import numba as nb
 import numpy as np
-
-
-@nb.njit(cache=True)
-def add_contact_loads(f: np.ndarray, dof_map: np.ndarray, bi: np.ndarray, bj: np.ndarray,
-                      ti: np.ndarray, tj: np.ndarray, force_i: np.ndarray) -> None:
-    """f += Tᵢᵀ F on block i and −Tⱼᵀ F on block j for every contact (in place).
-
-    `dof_map (n, d)` unknown index per block dof (-1: fixed), `ti`, `tj (c, 3, d)`,
-    `force_i (c, 3)` the force on block i at its contact point."""
-    c, _, d = ti.shape
-    for k in range(c):
-        a, b = bi[k], bj[k]
-        for q in range(d):
-            ia = dof_map[a, q]
-            if ia >= 0:
-                f[ia] += (ti[k, 0, q] * force_i[k, 0] + ti[k, 1, q] * force_i[k, 1]
-                          + ti[k, 2, q] * force_i[k, 2])
-            ib = dof_map[b, q]
-            if ib >= 0:
-                f[ib] -= (tj[k, 0, q] * force_i[k, 0] + tj[k, 1, q] * force_i[k, 1]
-                          + tj[k, 2, q] * force_i[k, 2])
 
 
 @nb.njit(cache=True)

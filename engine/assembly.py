@@ -48,6 +48,8 @@ _TX[2, 10] = 0.5
 _TY[0, 11] = 0.5
 _TX[1, 11] = 0.5
 _TA = np.stack([_TX, _TY, _TZ])  # (3, 3, 12)
+#: the T_aᵀ T_b of the second moments C_ab, flattened (9, 144)
+_CROSS = np.einsum("aki,bkj->abij", _TA, _TA).reshape(9, 144)
 
 
 def displacement_matrices(points: np.ndarray, centroids: np.ndarray) -> np.ndarray:
@@ -61,10 +63,12 @@ def mass_matrices(density: np.ndarray, volume: np.ndarray, second: np.ndarray) -
 
     `density (n,)` kg/m³, `volume (n,)` m³, `second (n, 3, 3)` = ∫ x_t x_tᵀ dV.
     """
-    t0 = _T0.T @ _T0
-    cross = np.einsum("aki,bkj->abij", _TA, _TA)  # (3, 3, 12, 12)
-    m = volume[:, None, None] * t0[None] + np.einsum("nab,abij->nij", second, cross)
-    return density[:, None, None] * m
+    n = len(volume)
+    m = (second.reshape(n, 9) @ _CROSS).reshape(n, 12, 12)
+    for k in range(3):  # T0ᵀ T0 is the identity on the translations
+        m[:, k, k] += volume
+    m *= density[:, None, None]
+    return m
 
 
 def elastic_matrix(young_modulus: float, poisson_ratio: float) -> np.ndarray:

@@ -19,7 +19,8 @@ from scipy.spatial import ConvexHull, QhullError
 from scipy.spatial.transform import Rotation
 
 from engine import assembly as asm
-from engine._assembly_kernels import add_contact_loads, relative_displacement
+from engine._assembly_kernels import relative_displacement
+from engine._open_close_kernels import contact_loads, update_modes
 from engine.contacts import LOCKED, OPEN, SLIDING, ContactSet, assign_joint_materials
 from engine.detection import detect_contacts
 from engine.frame import Frame, Recorder
@@ -174,6 +175,11 @@ def _rows_dot(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     return np.einsum("ij,ij->i", a, b)
 
 
+def _tangential(v: np.ndarray, n: np.ndarray) -> np.ndarray:
+    """The parts `(c, 3)` of vectors `v (c, 3)` in the planes of unit normals `n (c, 3)`."""
+    return v - _rows_dot(v, n)[:, None] * n
+
+
 def _strain_matrix(eps: np.ndarray) -> np.ndarray:
     """Symmetric strain tensors `(n, 3, 3)` from Voigt engineering strains `(n, 6)`."""
     e = np.zeros((len(eps), 3, 3))
@@ -306,7 +312,7 @@ class Simulation:
         a = self.state.affine
         det = np.linalg.det(a)
         vol = self.volume0 * det
-        second = det[:, None, None] * np.einsum("nij,njk,nlk->nil", a, self.second0, a)
+        second = det[:, None, None] * (a @ self.second0 @ np.transpose(a, (0, 2, 1)))
         return vol, second
 
     # ------------------------------------------------------------------ contacts
@@ -356,12 +362,15 @@ class Simulation:
 
     # ------------------------------------------------------------------ one step
     def block_terms(self, dt: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Block stiffness `(n, 12, 12)`, block forces `(n, 12)`, mass `(n, 12, 12)`."""
+        """Block stiffness `(n, d, d)` and block forces `(n, 12)` on the d = 6 (rigid) or
+        12 (elastic) unknowns of each block, and the mass `(n, 12, 12)`."""
         s = self.state
+        nd = self.ndof
         vol, second = self.mass_properties()
         mass = asm.mass_matrices(self.density, vol, second)
-        kb = 2.0 * mass / dt**2
-        fb = 2.0 * np.einsum("nij,nj->ni", mass, s.velocity) / dt
+        kb = mass[:, :nd, :nd] * (2.0 / dt**2)
+        fb = (mass @ s.velocity[:, :, None])[:, :, 0]
+        fb *= 2.0 / dt
         fb[:, :3] += (self.density * vol)[:, None] * self.model.gravity[None]
         if self.elastic:
             kb[:, 6:, 6:] += vol[:, None, None] * self.emat
@@ -372,7 +381,7 @@ class Simulation:
         for b, p0 in self.fixed_ref:
             p = self.map_point(b, p0)
             t = asm.displacement_matrices(p[None], s.centroid[b][None])[0]
-            kb[b] += self.kf * t.T @ t
+            kb[b] += self.kf * (t.T @ t)[:nd, :nd]
             fb[b] -= self.kf * t.T @ (p - p0)
         return kb, fb, mass
 
@@ -480,7 +489,6 @@ class Simulation:
         kb, fb, mass = self.block_terms(dt)
         nu = self.n_unknowns
         nd = self.ndof
-        kb = kb[:, :nd, :nd]
         f_block = asm.scatter_vector(self.dof_map, np.arange(self.n), fb, nu)
         c = len(contacts)
         mode, shear0, tangent, broken = self.initial_modes(contacts, dt)
@@ -499,7 +507,6 @@ class Simulation:
         tj = np.ascontiguousarray(
             asm.displacement_matrices(contacts.point_j, s.centroid[bj])[:, :, :nd])
         dmap = np.ascontiguousarray(self.dof_map[:, :nd])
-        nmat = np.eye(3)[None] - np.einsum("ci,cj->cij", n, n)
         tan_phi = self.tan_phi[contacts.joint_material]
         cohesion_force = self.cohesion[contacts.joint_material] * areas
         tension_force = self.tension[contacts.joint_material] * areas
@@ -520,7 +527,6 @@ class Simulation:
             locked = mode == LOCKED
             sliding = mode == SLIDING
             key = (closed.tobytes(), locked.tobytes())
-            ra = shear0 + offset
             if solver is None or key != solver_key:
                 if plan is None:
                     plan = asm.plan_system(self.block_row, kb, bi, bj, ti, tj, n)
@@ -531,14 +537,10 @@ class Simulation:
                 except SolveError as exc:
                     raise StepFailure(str(exc)) from exc
                 solver_key = key
-            fric_mag = np.where(sliding, tan_phi * self.kn * np.abs(dstar), 0.0)
-            fric = fric_mag[:, None] * tangent
             # contact forces on block i (on j the opposite), as generalized loads
-            fi_point = (-(self.kn * d0 * closed)[:, None] * n
-                        - self.ks * locked[:, None] * np.einsum("cij,cj->ci", nmat, ra)
-                        - fric)
             f = f_block.copy()
-            add_contact_loads(f, dmap, bi, bj, ti, tj, fi_point)
+            fric_mag, fric = contact_loads(f, dmap, bi, bj, ti, tj, n, d0, mode, shear0,
+                                           offset, tangent, dstar, tan_phi, self.kn, self.ks)
             clock = self._tick("assembly", clock)
             try:
                 x = solver(f, x)
@@ -546,71 +548,18 @@ class Simulation:
                 raise StepFailure(str(exc)) from exc
             clock = self._tick("solve", clock)
             dr = relative_displacement(x, dmap, bi, bj, ti, tj)
-            d1 = d0 + _rows_dot(dr, n)
-            dr_t = dr - _rows_dot(dr, n)[:, None] * n
-            total_shear = np.einsum("cij,cj->ci", nmat, ra + dr)
             # ---- update modes (paper Table 2)
-            new_mode = mode.copy()
-            new_tangent = tangent.copy()
-            normal_force = -self.kn * d1
-            allow_tension = np.where(broken, 0.0, tension_force)
-            opening = closed & (normal_force < -allow_tension)
-            # a contact that opened MAX_REOPENINGS times in this step stays closed (a step
-            # of slight tension instead of endless open-close chatter)
-            opening &= reopenings < MAX_REOPENINGS
-            reopenings += opening
-            new_mode[opening] = OPEN
-            broken = broken | opening
-            still = closed & ~opening
-            limit = tan_phi * np.maximum(normal_force, 0.0) + np.where(broken, 0.0,
-                                                                       cohesion_force)
-            fs = self.ks * np.linalg.norm(total_shear, axis=1)
-            free = switches < MAX_SHEAR_SWITCHES
-            to_slide = still & locked & free & (fs > limit * (1 + 1e-9))
-            ts_norm = np.linalg.norm(total_shear, axis=1)
-            new_mode[to_slide] = SLIDING
-            new_tangent[to_slide] = total_shear[to_slide] / np.maximum(ts_norm[to_slide],
-                                                                       1e-300)[:, None]
-            broken = broken | to_slide
-            along = _rows_dot(dr_t, tangent)
-            # paper Table 2: a sliding contact locks when its slip reverses or when a
-            # locked spring could carry that slip within the friction limit
-            relock = still & sliding & free & ((along < 0)
-                                               | (self.ks * along <= tan_phi * normal_force))
-            switches += to_slide | relock
-            new_mode[relock] = LOCKED
-            # the re-locked spring continues from the friction force (no jump)
-            offset[relock] = (fric_mag[relock, None] / self.ks * tangent[relock]
-                              - dr_t[relock] - shear0[relock])
-            # open contacts that penetrate close (first entrance, revised point eq. 42-47)
-            closing = ~closed & (d1 < -self.open_close_gap)
-            if np.any(closing):
-                tstar = np.where(d0[closing] > 0,
-                                 d0[closing] / (d0[closing] - d1[closing]), 0.0)
-                offset[closing] = -tstar[:, None] * dr_t[closing]
-                after = (1 - tstar)[:, None] * dr_t[closing]
-                slide = (self.ks * np.linalg.norm(after, axis=1)
-                         > tan_phi[closing] * self.kn * np.abs(d1[closing]))
-                cm = np.where(slide, SLIDING, LOCKED).astype(np.int8)
-                new_mode[closing] = cm
-                an = np.linalg.norm(after, axis=1)
-                tn = np.where(an[:, None] > 0, after / np.maximum(an, 1e-300)[:, None], 0.0)
-                new_tangent[closing] = tn
-            new_dstar = np.where(new_mode != OPEN, np.minimum(d1, 0.0), 0.0)
-            # a contact that just closed had no normal spring in this cycle: its d1 is a
-            # free-flight overlap, so it carries no friction until the next solve
-            new_dstar[closing] = 0.0
-            new_fric = np.where(new_mode == SLIDING, tan_phi * self.kn * np.abs(new_dstar),
-                                0.0)[:, None] * new_tangent
-            changed = np.any(new_mode != mode)
+            (new_mode, new_tangent, new_dstar, d1, dr_t, along, total_shear, changed,
+             closed_changed, fric_change) = update_modes(
+                d0, n, dr, shear0, offset, mode, tangent, broken, reopenings, switches,
+                tan_phi, tension_force, cohesion_force, fric_mag, fric_prev, self.kn,
+                self.ks, self.open_close_gap, MAX_REOPENINGS, MAX_SHEAR_SWITCHES)
             # the iteration converges on open / closed (paper 4.3); locked <-> sliding
             # changes iterate too but are bounded per contact (MAX_SHEAR_SWITCHES)
-            mode_changes += int(np.any((new_mode != OPEN) != (mode != OPEN)))
+            mode_changes += int(closed_changed)
             clock = self._tick("open_close", clock)
             if mode_changes > max_changes:
                 break
-            fric_scale = max(np.abs(new_fric).max(initial=0.0), 1e-300)
-            fric_change = np.abs(new_fric - fric_prev).max(initial=0.0) / fric_scale
             fric_prev = fric
             mode, tangent, dstar = new_mode, new_tangent, new_dstar
             steady = 0 if changed else steady + 1
@@ -619,6 +568,7 @@ class Simulation:
             if not changed and (settled or not np.any(sliding)):
                 # contacts kept closed by the reopening cap must not end pulling the blocks
                 # together: that would be a bond the joint does not have
+                allow_tension = np.where(broken, 0.0, tension_force)
                 held = (mode != OPEN) & (reopenings >= MAX_REOPENINGS) & (
                     -self.kn * d1 < -allow_tension - self.kn * self.open_close_gap)
                 if np.any(held & ~released):
@@ -657,12 +607,12 @@ class Simulation:
                 closed = mode != OPEN
                 locked = mode == LOCKED
                 ra = shear0 + offset
-                total_shear = np.einsum("cij,cj->ci", nmat, ra + dr)
+                total_shear = _tangential(ra + dr, n)
                 nf = np.where(closed, -self.kn * d1, 0.0)
                 sf = np.where(locked[:, None], -self.ks * total_shear, 0.0) - fric
                 fw = float(np.sum(fric_mag * _rows_dot(dr_t, tangent)))
                 # the implicit penalty springs dissipate ½ k Δ² per step (β = ½, γ = 1)
-                s0 = np.einsum("cij,cj->ci", nmat, ra)
+                s0 = _tangential(ra, n)
                 num = 0.5 * self.kn * float(np.sum(
                     closed * ((d1 - d0) ** 2 - np.maximum(d0, 0.0) ** 2)))
                 num += 0.5 * self.ks * float(np.sum(locked * (

@@ -1,0 +1,170 @@
+"""Compiled per-contact loops of one open-close cycle: the contact loads of the cycle's modes
+and the mode update of the paper's Table 2 (with first entrance for contacts that close).
+
+Each cycle of a step's open-close iteration (~10 per step) ran these as some sixty numpy
+calls over the contact arrays; for a few contacts the calls' overhead was the whole cost,
+for thousands a fifth of the step. Compiled with numba (cached on disk). The rules are
+those documented in :meth:`engine.simulation.Simulation.solve_step`.
+"""
+
+from __future__ import annotations
+
+import numba as nb
+import numpy as np
+
+OPEN, LOCKED, SLIDING = 0, 1, 2  # engine.contacts modes
+
+
+@nb.njit(cache=True)
+def contact_loads(f: np.ndarray, dof_map: np.ndarray, bi: np.ndarray, bj: np.ndarray,
+                  ti: np.ndarray, tj: np.ndarray, normal: np.ndarray, d0: np.ndarray,
+                  mode: np.ndarray, shear0: np.ndarray, offset: np.ndarray,
+                  tangent: np.ndarray, dstar: np.ndarray, tan_phi: np.ndarray, kn: float,
+                  ks: float) -> tuple[np.ndarray, np.ndarray]:
+    """Add the contact forces of the cycle's modes to the load vector `f` (in place):
+    the normal spring's start-of-step force `−kn d0 n` of closed contacts, the locked
+    shear spring's `−ks (I − n nᵀ)(shear0 + offset)` and the explicit friction
+    `−tan φ kn |d*| t` of sliding ones (eqs. 24, 29, 32), as Tᵢᵀ F on block i and −Tⱼᵀ F
+    on block j. Returns the friction magnitudes `(c,)` and vectors `(c, 3)`."""
+    c, _, d = ti.shape
+    fric_mag = np.zeros(c)
+    fric = np.zeros((c, 3))
+    force = np.zeros(3)
+    for k in range(c):
+        m = mode[k]
+        if m == OPEN:
+            continue
+        n0, n1, n2 = normal[k, 0], normal[k, 1], normal[k, 2]
+        fn = -kn * d0[k]
+        force[0], force[1], force[2] = fn * n0, fn * n1, fn * n2
+        if m == LOCKED:
+            r0 = shear0[k, 0] + offset[k, 0]
+            r1 = shear0[k, 1] + offset[k, 1]
+            r2 = shear0[k, 2] + offset[k, 2]
+            rn = r0 * n0 + r1 * n1 + r2 * n2
+            force[0] -= ks * (r0 - rn * n0)
+            force[1] -= ks * (r1 - rn * n1)
+            force[2] -= ks * (r2 - rn * n2)
+        else:
+            fm = tan_phi[k] * kn * abs(dstar[k])
+            fric_mag[k] = fm
+            for r in range(3):
+                fric[k, r] = fm * tangent[k, r]
+                force[r] -= fric[k, r]
+        a, b = bi[k], bj[k]
+        for q in range(d):
+            ia = dof_map[a, q]
+            if ia >= 0:
+                f[ia] += ti[k, 0, q] * force[0] + ti[k, 1, q] * force[1] + ti[k, 2, q] * force[2]
+            ib = dof_map[b, q]
+            if ib >= 0:
+                f[ib] -= tj[k, 0, q] * force[0] + tj[k, 1, q] * force[1] + tj[k, 2, q] * force[2]
+    return fric_mag, fric
+
+
+@nb.njit(cache=True)
+def update_modes(d0: np.ndarray, normal: np.ndarray, dr: np.ndarray, shear0: np.ndarray,
+                 offset: np.ndarray, mode: np.ndarray, tangent: np.ndarray,
+                 broken: np.ndarray, reopenings: np.ndarray, switches: np.ndarray,
+                 tan_phi: np.ndarray, tension_force: np.ndarray,
+                 cohesion_force: np.ndarray, fric_mag: np.ndarray, fric_prev: np.ndarray,
+                 kn: float, ks: float, open_close_gap: float, max_reopenings: int,
+                 max_switches: int):  # noqa: ANN201 (a long tuple, see docstring)
+    """Table 2 for every contact after a solve with relative displacements `dr (c, 3)`.
+
+    A closed contact in tension beyond its tensile strength opens (at most
+    `max_reopenings` times per step) and its bond breaks; a locked one whose shear spring
+    exceeds `tan φ N + c A` slides along that shear, a sliding one whose slip reverses or
+    that a locked spring could hold locks again, continuing from its friction force (at
+    most `max_switches` locked <-> sliding changes per step); an open contact deeper than
+    `open_close_gap` closes at its first entrance (eqs. 42-47), sliding if the shear after
+    entrance exceeds friction. Updates `offset`, `broken`, `reopenings`, `switches` in
+    place. Returns `(mode, tangent, dstar, d1, dr_t, along, total_shear, changed,
+    closed_changed, fric_change)`: the new modes, sliding directions and friction depths
+    d*, the end gaps, tangential slips, slips along the old tangent, shear spring
+    stretches, whether any mode / any open-closed state changed, and the largest change
+    of the friction forces relative to their largest value.
+    """
+    c = len(d0)
+    new_mode = mode.copy()
+    new_tangent = tangent.copy()
+    new_dstar = np.zeros(c)
+    d1 = np.empty(c)
+    dr_t = np.empty((c, 3))
+    along = np.empty(c)
+    total_shear = np.empty((c, 3))
+    changed = False
+    closed_changed = False
+    fric_top = 0.0
+    fric_diff = 0.0
+    for k in range(c):
+        n0, n1, n2 = normal[k, 0], normal[k, 1], normal[k, 2]
+        dn = dr[k, 0] * n0 + dr[k, 1] * n1 + dr[k, 2] * n2
+        g1 = d0[k] + dn
+        d1[k] = g1
+        t0, t1, t2 = dr[k, 0] - dn * n0, dr[k, 1] - dn * n1, dr[k, 2] - dn * n2
+        dr_t[k, 0], dr_t[k, 1], dr_t[k, 2] = t0, t1, t2
+        s0 = shear0[k, 0] + offset[k, 0] + dr[k, 0]
+        s1 = shear0[k, 1] + offset[k, 1] + dr[k, 1]
+        s2 = shear0[k, 2] + offset[k, 2] + dr[k, 2]
+        sn = s0 * n0 + s1 * n1 + s2 * n2
+        s0, s1, s2 = s0 - sn * n0, s1 - sn * n1, s2 - sn * n2
+        total_shear[k, 0], total_shear[k, 1], total_shear[k, 2] = s0, s1, s2
+        al = t0 * tangent[k, 0] + t1 * tangent[k, 1] + t2 * tangent[k, 2]
+        along[k] = al
+        m = mode[k]
+        closed = m != OPEN
+        nm = m
+        normal_force = -kn * g1
+        allow = 0.0 if broken[k] else tension_force[k]
+        if closed and normal_force < -allow and reopenings[k] < max_reopenings:
+            reopenings[k] += 1
+            nm = OPEN
+            broken[k] = True
+        elif closed:
+            limit = tan_phi[k] * max(normal_force, 0.0) + (0.0 if broken[k]
+                                                           else cohesion_force[k])
+            ts = np.sqrt(s0 * s0 + s1 * s1 + s2 * s2)
+            free = switches[k] < max_switches
+            if m == LOCKED and free and ks * ts > limit * (1 + 1e-9):
+                nm = SLIDING
+                switches[k] += 1
+                new_tangent[k, 0], new_tangent[k, 1], new_tangent[k, 2] = (
+                    s0 / ts, s1 / ts, s2 / ts)
+                broken[k] = True
+            elif m == SLIDING and free and (al < 0 or ks * al <= tan_phi[k] * normal_force):
+                nm = LOCKED
+                switches[k] += 1
+                # the re-locked spring continues from the friction force (no jump)
+                for r in range(3):
+                    offset[k, r] = (fric_mag[k] / ks * tangent[k, r] - dr_t[k, r]
+                                    - shear0[k, r])
+        elif g1 < -open_close_gap:
+            # first entrance within the step: the contact point is revised (eq. 47)
+            tstar = d0[k] / (d0[k] - g1) if d0[k] > 0 else 0.0
+            for r in range(3):
+                offset[k, r] = -tstar * dr_t[k, r]
+            a0, a1, a2 = (1 - tstar) * t0, (1 - tstar) * t1, (1 - tstar) * t2
+            an = np.sqrt(a0 * a0 + a1 * a1 + a2 * a2)
+            nm = SLIDING if ks * an > tan_phi[k] * kn * abs(g1) else LOCKED
+            if an > 0:
+                new_tangent[k, 0], new_tangent[k, 1], new_tangent[k, 2] = (
+                    a0 / an, a1 / an, a2 / an)
+            else:
+                new_tangent[k, 0] = new_tangent[k, 1] = new_tangent[k, 2] = 0.0
+            # no normal spring acted in this cycle: no friction until the next solve
+        new_mode[k] = nm
+        if nm != OPEN and closed:
+            new_dstar[k] = min(g1, 0.0)
+        fm = tan_phi[k] * kn * abs(new_dstar[k]) if nm == SLIDING else 0.0
+        for r in range(3):
+            v = fm * new_tangent[k, r]
+            fric_top = max(fric_top, abs(v))
+            fric_diff = max(fric_diff, abs(v - fric_prev[k, r]))
+        if nm != m:
+            changed = True
+        if (nm != OPEN) != closed:
+            closed_changed = True
+    fric_change = fric_diff / max(fric_top, 1e-300)
+    return (new_mode, new_tangent, new_dstar, d1, dr_t, along, total_shear, changed,
+            closed_changed, fric_change)
