@@ -529,6 +529,8 @@ def narrow_phase(pa: np.ndarray, pb: np.ndarray, x: np.ndarray, v_surface: np.nd
     within `reach[i] + reach[j]` (m; `reach (n_blocks,)`). Returns `(ri, rf, cand)`
     (module docstring)."""
     dmax, dfmax = pv_dir.shape[1], pv_faces.shape[1]
+    # a plane through edges lies on a face when within the entrance angle of it
+    cos_tag = np.sqrt(1.0 - entrance * entrance)
     cmax = max(2 + dfmax + dmax, 2 * dfmax + dmax * dmax)
     cand = np.zeros((cmax, 3))
     cvalid = np.zeros(cmax, dtype=np.bool_)
@@ -702,11 +704,12 @@ def narrow_phase(pa: np.ndarray, pb: np.ndarray, x: np.ndarray, v_surface: np.nd
                 q0 = q
                 q = _copy_unique(cand, adm, nc, parallel, ukeep, out_c, q, side == 1)
                 v = pv_vtx[pv]
+                tag = ctag[best] if cface[best] else _plane_tag(
+                    pv_faces[pv], e_faces[e], f_tag, f_normal, cand[best], cos_tag)
                 _emit(ri, rf, k, bi, bj, VERTEX_EDGE,
                       _code(piece_local[xp], FEATURE_VERTEX, v_local[v]),
                       _code(piece_local[yp], FEATURE_EDGE, e_local[e]),
-                      ctag[best] if cface[best] else -1, v, side == 1, q - q0,
-                      pair, xv, proj, cand[best], gap)
+                      tag, v, side == 1, q - q0, pair, xv, proj, cand[best], gap)
                 k += 1
                 taken[side, lv] = True
         # ---- crossing edge-edge
@@ -765,7 +768,9 @@ def narrow_phase(pa: np.ndarray, pb: np.ndarray, x: np.ndarray, v_surface: np.nd
                 _emit(ri, rf, k, bi, bj, EDGE_EDGE,
                       _code(piece_local[a_p], FEATURE_EDGE, e_local[e1]),
                       _code(piece_local[b_p], FEATURE_EDGE, e_local[e2]),
-                      -1, -1, False, 0, pair, proj, p_best, n_best, gap)
+                      _plane_tag(e_faces[e1], e_faces[e2], f_tag, f_normal, n_best,
+                                 cos_tag),
+                      -1, False, 0, pair, proj, p_best, n_best, gap)
                 k += 1
         # ---- vertex-vertex (vertices without a vertex-face or vertex-edge contact)
         m = 0
@@ -803,10 +808,12 @@ def narrow_phase(pa: np.ndarray, pb: np.ndarray, x: np.ndarray, v_surface: np.nd
             ri, rf, out_c = _reserve(ri, rf, out_c, k, q, 1, nc)
             q0 = q
             q = _copy_unique(cand, adm, nc, parallel, ukeep, out_c, q, False)
+            tag = ctag[best] if cface[best] else _plane_tag(
+                pv_faces[va], pv_faces[vb], f_tag, f_normal, cand[best], cos_tag)
             _emit(ri, rf, k, bi, bj, VERTEX_VERTEX,
                   _code(piece_local[a_p], FEATURE_VERTEX, v_local[pv_vtx[va]]),
                   _code(piece_local[b_p], FEATURE_VERTEX, v_local[pv_vtx[vb]]),
-                  ctag[best] if cface[best] else -1, pv_vtx[va], False, q - q0, pair,
+                  tag, pv_vtx[va], False, q - q0, pair,
                   x[pv_vtx[va]], x[pv_vtx[vb]], cand[best], gap)
             k += 1
     return ri[:k], rf[:k], out_c[:q]
@@ -830,6 +837,34 @@ def _copy_unique(cand: np.ndarray, adm: np.ndarray, nc: int, parallel: float,
                 out[q, j] = s * cand[c, j]
             q += 1
     return q
+
+
+@njit(**_OPTS)
+def _plane_tag(fx: np.ndarray, fy: np.ndarray, f_tag: np.ndarray, f_normal: np.ndarray,
+               n: np.ndarray, cos_min: float) -> int:
+    """Joint tag of a contact plane through edges (normal `n`): the tag of the face
+    among `fx` and `fy` (the faces at the two contact features, -1 pads) most nearly
+    parallel to the plane, within `cos_min`; a tag found on both sides wins a tie. -1
+    when no tagged face lies along the plane."""
+    best, score = -1, -np.inf
+    for side in range(2):
+        faces, other = (fx, fy) if side == 0 else (fy, fx)
+        for a in range(len(faces)):
+            f = faces[a]
+            if f < 0 or f_tag[f] < 0:
+                continue
+            c = abs(_dot(f_normal[f], n))
+            if c < cos_min:
+                continue
+            shared = False
+            for b in range(len(other)):
+                if other[b] >= 0 and f_tag[other[b]] == f_tag[f]:
+                    shared = True
+                    break
+            sc = c + (1e-9 if shared else 0.0)
+            if sc > score:
+                best, score = f_tag[f], sc
+    return best
 
 
 @njit(**_OPTS)

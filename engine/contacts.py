@@ -41,8 +41,10 @@ class ContactSet:
     - `key (c, 4) int64`: stable identity (block i, feature i, block j, feature j),
       feature ids encode piece and vertex / edge / face so the same contact is
       found again in the next step
-    - `face_tag (c,) int`: tag (joint id) of the face that defines the plane, -1 if
-      the plane comes from an edge-edge cross product or a boundary face
+    - `face_tag (c,) int`: tag (joint id) of the face that defines the plane; for a
+      plane through edges (edge-edge, and vertex-edge or vertex-vertex on a cross-product
+      plane) the tag of a face at the contact lying along the plane; -1 for a boundary
+      face or when no tagged face lies along the plane
     - `joint_material (c,) int`: joint material index (set by the caller)
     - `cand_indptr (c+1,) int`, `cand_normals (q, 3)`: candidate normals of a pure
       vertex-vertex or vertex-edge contact (empty range for the others)

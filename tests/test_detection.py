@@ -19,6 +19,7 @@ from engine.contacts import (
     VERTEX_FACE,
     VERTEX_VERTEX,
     ContactSet,
+    assign_joint_materials,
 )
 from engine.detection import aabb_pairs, decode_feature, detect_contacts, feature_code
 from engine.geometry import (
@@ -265,6 +266,22 @@ def test_cube_overhanging_slab_edge():
     assert np.allclose(c.point_i[ee][:, 2], -0.001)
 
 
+def test_edge_contacts_on_a_joint_carry_its_tag():
+    """The cube overhanging a slab whose top face lies on joint 7: the edge-edge
+    constraints at the slab's edge lie on that face's plane and get its joint (and so its
+    joint material)."""
+    slab = box((-2, -2, -1), (0, 2, 0))
+    tags = np.full(len(slab.faces), -1)
+    tags[np.argmax(slab.face_normals[:, 2])] = 7
+    slab = Polyhedron.from_faces(slab.vertices, [f.tolist() for f in slab.faces], tags)
+    cube = box((-0.5, 0, -0.001), (0.5, 1, 0.999))
+    c = detect_contacts([slab, cube], 0.01)
+    assert sorted(c.kind.tolist()) == [VERTEX_FACE, VERTEX_FACE, EDGE_EDGE, EDGE_EDGE]
+    assert c.face_tag.tolist() == [7, 7, 7, 7]
+    assign_joint_materials(c, 0, {7: 1}, {})
+    assert c.joint_material.tolist() == [1, 1, 1, 1]
+
+
 def test_crossing_edges():
     """Two bars crossing at right angles, edge on edge: one e-e constraint."""
     low = box((-1, -0.5, -1), (1, 0.5, 0))
@@ -307,6 +324,10 @@ def test_tilted_crossing_edges_normal_is_cross_product():
     assert np.allclose(c.normal[0], n)
     assert c.point_j[0][1] == pytest.approx(0.0) and c.point_j[0][2] == pytest.approx(0.0)
     assert 0 < c.gap[0] < 0.004
+    # on jointed ridges the plane still lies on no face (45 degrees off): no joint
+    tagged = [Polyhedron.from_faces(b.vertices, [f.tolist() for f in b.faces],
+                                    np.full(len(b.faces), 3)) for b in (roof, upper)]
+    assert detect_contacts(tagged, 0.02).face_tag.tolist() == [-1]
 
 
 def test_vertex_on_vertex_shortest_exit():
@@ -434,7 +455,8 @@ def test_wedge_sunk_stays_on_the_joint_planes():
     on2 = np.isclose(c.normal @ n2, 1.0)
     assert np.all(on1 | on2) and on1.sum() >= 3 and on2.sum() >= 3
     assert np.allclose(c.gap, -0.002 * c.normal[:, 2])
-    assert np.all(np.isin(c.face_tag[c.kind != EDGE_EDGE], [1, 2]))
+    # every constraint, edge-edge ones included, carries the joint of its plane
+    assert np.array_equal(c.face_tag, np.where(on1, 1, 2))
 
 
 # --------------------------------------------------------------------------- properties
