@@ -81,6 +81,7 @@ def test_toppling_example() -> None:
 
 
 @pytest.mark.slow
+@pytest.mark.ci
 def test_block_system_example() -> None:
     """The paper's block-system failure (6.3): runs to the end without creating energy."""
     res, _, log = _run("block_system")

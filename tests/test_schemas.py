@@ -23,6 +23,7 @@ from schemas import (
     scene_json_schema,
 )
 from schemas.convert import overlap_depth
+from tests.test_cutting import WEDGE, check_no_overlap
 
 EXAMPLES = Path(__file__).resolve().parent.parent / "examples"
 
@@ -494,10 +495,18 @@ def test_every_example_loads_and_builds(built: dict[str, Any]) -> None:
 
 
 def test_example_wedge(built: dict[str, Any]) -> None:
+    """examples/wedge.json cuts into the paper's tetrahedral wedge (issue's vertices, 1e-5
+    m) and one concave, fixed base block; the two do not overlap."""
     r = built["wedge"]
     free = [b for b in r.model.blocks if not b.fixed]
     assert len(r.model.blocks) == 2 and len(free) == 1
-    assert free[0].polyhedron.volume == pytest.approx(29.7708, abs=1e-4)
+    wedge = free[0].polyhedron
+    assert wedge.volume == pytest.approx(29.7708, abs=1e-4)
+    d = np.linalg.norm(wedge.vertices[:, None] - WEDGE[None], axis=2)
+    assert len(wedge.vertices) == 4 and d.min(axis=0).max() < 1e-5
+    base = next(b for b in r.model.blocks if b.fixed).polyhedron
+    assert not base.is_convex
+    check_no_overlap([wedge, base])
     assert r.model.controls.penalty == 3e10
 
 
@@ -507,6 +516,8 @@ def test_example_block_system(built: dict[str, Any]) -> None:
            if s == "cut"]
     assert len(cut) == 30
     assert sum(cut) == pytest.approx(1000.0, rel=1e-9)
+    check_no_overlap([b.polyhedron for b, s in zip(r.model.blocks, r.block_sources,
+                                                   strict=True) if s == "cut"])
     assert all(r.model.joint_materials[r.model.joint_material_of_tag[t]].friction_angle_rad == 0
                for t in range(3))
 
