@@ -692,7 +692,9 @@ def narrow_phase(pa: np.ndarray, pb: np.ndarray, x: np.ndarray, v_surface: np.nd
                         edges[ie], pv, x, v_surface, e_vtx, e_dir, e_faces, e_in, f_normal,
                         f_tag, pv_vtx, pv_faces, pv_dir, pv_nb_real, r, snap, ang, parallel,
                         entrance, cand, cvalid, cface, ctag, adm, adm_gap, dy, ry, proj, delta)
-                    if best >= 0 and gap > best_gap:
+                    # ties within snap go to the first edge (collinear edges split by a
+                    # seam point): the choice must not depend on round-off
+                    if best >= 0 and gap > best_gap + snap:
                         best_e, best_gap = ie, gap
                 if best_e < 0:
                     continue
@@ -786,7 +788,7 @@ def narrow_phase(pa: np.ndarray, pb: np.ndarray, x: np.ndarray, v_surface: np.nd
                 gap, nc, best = _vertex_vertex_plane(
                     va, vb, x, pv_vtx, f_normal, f_tag, pv_faces, pv_dir, pv_nb_real, r, snap,
                     ang, parallel, entrance, cand, cvalid, cface, ctag, adm, adm_gap, delta)
-                if best >= 0 and gap > best_gap:
+                if best >= 0 and gap > best_gap + snap:  # ties: the first vertex
                     best_b, best_gap = vb, gap
             if best_b >= 0:
                 vv_a[m], vv_b[m], vv_gap[m] = va, best_b, best_gap

@@ -21,6 +21,7 @@ from engine.contacts import (
     ContactSet,
     assign_joint_materials,
 )
+from engine.cutting import convex_decomposition
 from engine.detection import aabb_pairs, decode_feature, detect_contacts, feature_code
 from engine.geometry import (
     ConvexPiece,
@@ -29,6 +30,7 @@ from engine.geometry import (
     face_normals_areas,
     faces_to_csr,
 )
+from engine.shapes import prism
 
 # --------------------------------------------------------------------------- shape helpers
 
@@ -486,10 +488,45 @@ def random_scene(seed: int) -> list[Polyhedron]:
     return [a, b]
 
 
+U_BASE = [(0, 0), (3, 0), (3, 3), (2, 3), (2, 1), (1, 1), (1, 3), (0, 3)]  # open to +y
+
+
+def property_scene(seed: int) -> list[Polyhedron]:
+    """Scenes of the property tests: those of :func:`random_scene`, a random convex block
+    in a U channel (two concave edges, three convex pieces) and two L blocks meeting corner
+    into corner (concave against concave)."""
+    rng = np.random.default_rng(seed)
+    if seed % 4 == 1:
+        # a block pushed into the channel's inner corner at (1, 1), within ±1 cm
+        channel = convex_decomposition(prism(np.array(U_BASE, float), 2.0))
+        b = random_convex(rng, [0.0, 0.0, 1.0], 0.45)
+        lo = b.vertices[b.surface_vertex_ids].min(axis=0)
+        return [channel, b.moved(b.vertices + [1 - lo[0], 1 - lo[1], 0]
+                                 + rng.uniform(-0.01, 0.01, 3) * [1, 1, 0])]
+    if seed % 4 == 3:
+        # turned over, the second L's wall stands on the first's floor and its floor lies
+        # on the first's wall: a frame of two concave blocks, ±1 cm
+        lb = l_block()
+        rot = Rotation.from_rotvec([0, np.pi, 0]).as_matrix()
+        other = transformed(lb, rot, np.array([3.0, 0.0, 4.0]) + rng.uniform(-0.01, 0.01, 3))
+        return [lb, other]
+    return random_scene(seed)
+
+
+@settings(max_examples=25, deadline=None, database=None)
+@given(st.integers(0, 10**6))
+def test_property_scenes_include_concave_pairs(seed):
+    """The concave property scenes are valid blocks that do touch."""
+    blocks = property_scene(4 * seed + 1 + 2 * (seed % 2))
+    for b in blocks:
+        assert b.problems() == []
+    assert len(detect_contacts(blocks, 0.05)) > 0
+
+
 @settings(max_examples=25, deadline=None, database=None)
 @given(st.integers(0, 10**6))
 def test_swapping_blocks_mirrors_constraints(seed):
-    a, b = random_scene(seed)
+    a, b = property_scene(seed)
     c1 = detect_contacts([a, b], 0.02)
     c2 = detect_contacts([b, a], 0.02)
     check_invariants(c1)
@@ -503,7 +540,9 @@ def test_swapping_blocks_mirrors_constraints(seed):
 @settings(max_examples=25, deadline=None, database=None)
 @given(st.integers(0, 10**6), st.integers(0, 10**6))
 def test_rigid_motion_of_scene_moves_constraints(seed, seed2):
-    blocks = random_scene(seed)
+    """Moving the whole scene moves points and turns normals and candidate planes with
+    it; keys, kinds and gaps stay; tangents stay unit vectors in the contact plane."""
+    blocks = property_scene(seed)
     rng = np.random.default_rng(seed2)
     rot = Rotation.random(random_state=rng).as_matrix()
     shift = rng.uniform(-5, 5, 3)
@@ -518,12 +557,19 @@ def test_rigid_motion_of_scene_moves_constraints(seed, seed2):
     assert np.allclose(c1.gap[o1], c2.gap[o2], atol=1e-9)
     assert np.allclose(c1.normal[o1] @ rot.T, c2.normal[o2], atol=1e-7)
     assert np.allclose(c1.point_i[o1] @ rot.T + shift, c2.point_i[o2], atol=1e-7)
+    assert np.allclose(c1.point_j[o1] @ rot.T + shift, c2.point_j[o2], atol=1e-7)
+    assert np.allclose(np.linalg.norm(c2.tangent, axis=1), 1.0)
+    assert np.allclose(np.einsum("ij,ij->i", c2.tangent, c2.normal), 0.0, atol=1e-12)
+    for a, b in zip(o1, o2, strict=True):
+        n1 = c1.cand_normals[c1.cand_indptr[a]:c1.cand_indptr[a + 1]]
+        n2 = c2.cand_normals[c2.cand_indptr[b]:c2.cand_indptr[b + 1]]
+        assert np.allclose(n1 @ rot.T, n2, atol=1e-7)
 
 
 @settings(max_examples=25, deadline=None, database=None)
 @given(st.integers(0, 10**6), st.floats(0.011, 0.5))
 def test_separated_blocks_produce_nothing(seed, sep):
-    a, b = random_scene(seed)
+    a, b = property_scene(seed)
     d = np.array([0.0, 0.0, 1.0])
     top = a.vertices[a.surface_vertex_ids] @ d
     low = b.vertices[b.surface_vertex_ids] @ d
@@ -535,7 +581,7 @@ def test_separated_blocks_produce_nothing(seed, sep):
 @given(st.integers(0, 10**6))
 def test_contacts_are_near_both_blocks(seed):
     """Every contact point lies on (within snap of) its block's surface region."""
-    blocks = random_scene(seed)
+    blocks = property_scene(seed)
     c = detect_contacts(blocks, 0.02)
     for k in range(len(c)):
         for blk, p in ((blocks[c.block_i[k]], c.point_i[k]), (blocks[c.block_j[k]], c.point_j[k])):
@@ -630,12 +676,16 @@ RECORDED = dict([
     # the two corner vertices of the sunk wedge on the slope face (y = -4) lie on a face
     # of the base they are not inside: since the shortest-exit rule for vertex-face
     # contacts they are vertex-edge contacts, with the same plane, points and gaps
+    # (keys: since vertex-edge ties within snap go to the first edge, a vertex on a seam
+    # point between two collinear piece edges takes the first of them)
     ('l-block, base, sunk wedge',
-     (8, [2, 2, 4, 0], 'ef21c1cb51e91c32', 0.048654567, 37.830684, 4)),
+     (8, [2, 2, 4, 0], '076fb1cd9776f765', 0.048654567, 37.830684, 4)),
     # 19 corner vertices just outside a neighbour's side face but below its top plane are
-    # not inside it: vertex-edge (shortest exit) instead of vertex-face since that rule
+    # not inside it: vertex-edge (shortest exit) instead of vertex-face since that rule;
+    # since vertex-edge ties within snap (5 µm here) go to the first edge, a few vertex-edge
+    # contacts take the other of two edges equally near (keys, planes, gaps within snap)
     ('jittered boxes',
-     (715, [143, 193, 373, 6], '6a7fcc23b0e68338', 0.49788422, 368110.802153, 1427)),
+     (715, [143, 193, 373, 6], '18a0df01a6cc75a4', 0.49788554, 368121.784435, 1423)),
     ('random hulls', (3, [2, 1, 0, 0], '112dff058a5d8c66', 0.047108353, -2.240597, 0)),
 ])
 
