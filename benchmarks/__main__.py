@@ -2,7 +2,8 @@
 and regenerate REPORT.md, the charts and the CSVs.
 
 Sections: accuracy (cases incline, wedge0, wedge10, fall, pushed can be named alone),
-peers, stability (or one of its cases by name), scaling, savings. The quick default runs a
+peers, stability (or one of its cases by name), scaling, savings, components (cutting and
+contact detection on their own). The quick default runs a
 small grid of each; `--full` runs everything. Sections not run keep their previous numbers
 (stored in `results/<section>.json`), and the report says when they were made.
 """
@@ -21,10 +22,10 @@ from typing import Any
 
 import numpy as np
 
-from benchmarks import cases, peers, scaling, stability
+from benchmarks import cases, components, peers, scaling, stability
 from benchmarks import harness as h
 
-SECTIONS = ("accuracy", "peers", "stability", "scaling", "savings")
+SECTIONS = ("accuracy", "peers", "stability", "scaling", "savings", "components")
 
 
 def _g(x: Any, digits: int = 3) -> str:
@@ -360,6 +361,9 @@ def write_report(out: Path, report: Path, meta: dict[str, Any]) -> None:
         parts += ["## 4. Scaling", "", "(section not run)", ""]
     parts += [savings_part(sv) if sv else "## 5. No more than a scene needs\n\n(section not run)",
               ""]
+    cp = h.load_json(out, "components")
+    parts += [components.components_part(cp) if cp else
+              "## 6. Cutting and contact detection on their own\n\n(section not run)", ""]
     if sv:
         failures += savings_failures(sv)
     parts += ["## Failures found", "",
@@ -437,6 +441,11 @@ def main(argv: list[str] | None = None) -> int:
         scaling.run_savings(out, args.full)
         ran.append("savings")
         stamps["savings"] = f"{mode}, {now}"
+    if "components" in only:
+        print("[components]", flush=True)
+        components.run_components(out, args.full)
+        ran.append("components")
+        stamps["components"] = f"{mode}, {now}"
     cmd = "python -m benchmarks" + (" " + " ".join(shlex.quote(a) for a in (argv or sys.argv[1:]))
                                     if (argv or sys.argv[1:]) else "")
     meta = {"machine": h.machine_info(), "load_before": load_before,
