@@ -54,7 +54,12 @@ def accuracy_part(acc: dict[str, Any], charts: list[str]) -> str:
              f"Grid: Δt ∈ {{{', '.join(f'{x:g}' for x in acc['grid']['dts'])}}} s, penalty k ∈ "
              f"{{{', '.join(f'{x:g}' for x in acc['grid']['penalties'])}}} N/m "
              f"(per vertex spring), open-close iterations {acc['grid']['oc']} plus "
-             f"{acc['grid']['oc_extra']} at the stiffest k and the two largest Δt. Error: "
+             f"{acc['grid']['oc_extra']} at the stiffest k and the two largest Δt"
+             + (f"; and Δt ∈ {{{', '.join(f'{x:g}' for x in acc['grid']['big_dts'])}}} s at "
+                f"the stiffest k with a step displacement limit of "
+                f"{', '.join(f'{x:.0%}' for x in acc['grid']['ratio'])} of the model size "
+                "instead of the default 1 % (`analysis.max_displacement_ratio`)"
+                if acc["grid"].get("big_dts") else "") + ". Error: "
              "incline / pushed — d(1 s); wedges — acceleration along the line of "
              "intersection (slope of v over 0.5–1 s); fall — static penetration W/(4k) after "
              "2 s. Wall time is the run without recording. Every point is in "
@@ -113,7 +118,10 @@ def peers_part(pe: dict[str, Any] | None, acc: dict[str, Any] | None) -> str:
         inc = [r for r in acc["rows"] if r["case"] == "incline" and r["status"] == "completed"
                and r["oc_iterations"] in acc["grid"]["oc"]]
         rows += [["PolyDDA", r["dt"], r["penalty"], r["steps"], f"{r['wall_s']:.4f}",
-                  f"{r['value']:.6f}", f"{r['rel_error']:.2e}", "rigid, this repo"]
+                  f"{r['value']:.6f}", f"{r['rel_error']:.2e}",
+                  "rigid, this repo" + (
+                      f"; step limit {r['max_displacement_ratio']:.0%} of the model size"
+                      if r.get("max_displacement_ratio", 0.01) != 0.01 else "")]
                  for r in sorted(inc, key=lambda r: (r["penalty"], -r["dt"]))]
     lines.append("Incline cube (φ = 20°, exact d(1 s) = 0.906407 m), re-run on this machine; "
                  "wall time is the stepping loop for the peers and the whole `run()` "
@@ -419,7 +427,7 @@ def main(argv: list[str] | None = None) -> int:
     if "accuracy" in only or acc_cases:
         grid = {"dts": args.dts, "penalties": args.penalties}
         if args.dts or args.penalties:
-            grid.update({"oc_extra": [], "oc": [20]})
+            grid.update({"oc_extra": [], "oc": [20], "big_dts": []})
         cases.run_accuracy(out, args.full, acc_cases or None, grid)
         ran.append("accuracy" + (f" ({', '.join(acc_cases)})" if acc_cases else ""))
         stamps["accuracy"] = f"{mode}, {now}"

@@ -154,34 +154,44 @@ CASES: dict[str, Case] = {
                    lambda k: pushed_error, "d(1 s) m", PUSHED_D1),
 }
 
+#: the default largest displacement in a step, / model size (AnalysisControls)
+RATIO = 0.01
+#: `big_dts` run at the stiffest penalty with a displacement limit of `ratio` × the model
+#: size: the DDA integrator is exact for constant acceleration, so where nothing else
+#: limits the step a user may allow larger steps (analysis.max_displacement_ratio)
 QUICK_GRID = {"dts": [1e-1, 3e-2, 1e-2, 3e-3, 1e-3], "penalties": [1e8, 1e10], "oc": [20],
-              "oc_extra": [2]}
+              "oc_extra": [2], "big_dts": [0.25], "ratio": [0.05]}
 FULL_GRID = {"dts": [1e-1, 3e-2, 1e-2, 3e-3, 1e-3, 3e-4],
-             "penalties": [1e7, 1e8, 1e9, 1e10, 1e11, 1e12], "oc": [20], "oc_extra": [1, 2, 4]}
+             "penalties": [1e7, 1e8, 1e9, 1e10, 1e11, 1e12], "oc": [20], "oc_extra": [1, 2, 4],
+             "big_dts": [0.1, 0.25, 0.35, 0.5], "ratio": [0.05]}
 
 
 def sweep_case(case: Case, dts: list[float], penalties: list[float], oc: list[int],
-               oc_extra: list[int]) -> list[dict[str, Any]]:
+               oc_extra: list[int], big_dts: list[float] = (),
+               ratios: list[float] = ()) -> list[dict[str, Any]]:
     """Run one case over the grid (plus open-close limits at the stiffest penalty, largest
-    Δt); one row per run."""
-    combos = [(dt, k, it) for dt in dts for k in penalties for it in oc]
+    Δt, and larger steps with a larger displacement limit); one row per run."""
+    combos = [(dt, k, it, RATIO) for dt in dts for k in penalties for it in oc]
     if oc_extra:
-        combos += [(dt, max(penalties), it) for dt in dts[:2] for it in oc_extra]
+        combos += [(dt, max(penalties), it, RATIO) for dt in dts[:2] for it in oc_extra]
+    combos += [(dt, max(penalties), oc[0], r) for dt in big_dts for r in ratios]
     rows = []
-    for dt, k, it in combos:
+    for dt, k, it, ratio in combos:
         duration = 2.0 if case.name == "fall" else 1.0
         rec_every = max(1, int(round(0.01 / dt)))
         model = case.build(dt=dt, penalty=k, duration=duration, max_open_close_iterations=it,
-                           record_interval=rec_every, record_contacts=False)
+                           record_interval=rec_every, record_contacts=False,
+                           max_displacement_ratio=ratio)
         out = h.run_model(model, record=case.record)
         err, value = case.error(k)(out) if out.status == STATUS_COMPLETED else (np.nan, np.nan)
         exact = W / (4 * k) if case.name == "fall" else case.exact
         rows.append({"engine": "PolyDDA", "case": case.name, "dt": dt, "penalty": k,
-                     "oc_iterations": it, "status": out.status, "message": out.message,
+                     "oc_iterations": it, "max_displacement_ratio": ratio,
+                     "status": out.status, "message": out.message,
                      "steps": out.steps, "wall_s": out.compute_wall, "value": value,
                      "exact": exact, "rel_error": err, **{f"t_{p}": v
                                                           for p, v in out.timings.items()}})
-        print(f"  {case.name:8s} dt={dt:<7g} k={k:<7g} oc={it} {out.status:9s} "
+        print(f"  {case.name:8s} dt={dt:<7g} k={k:<7g} oc={it} ratio={ratio:g} {out.status:9s} "
               f"err={err:.2e} wall={out.compute_wall:.2f}s steps={out.steps}", flush=True)
     return rows
 
@@ -200,7 +210,9 @@ def run_accuracy(out: Path, full: bool, names: list[str] | None = None,
         print(f"[accuracy] {name}", flush=True)
         rows += sweep_case(CASES[name], [float(x) for x in g["dts"]],
                            [float(x) for x in g["penalties"]],
-                           [int(x) for x in g["oc"]], [int(x) for x in g["oc_extra"]])
+                           [int(x) for x in g["oc"]], [int(x) for x in g["oc_extra"]],
+                           [float(x) for x in g.get("big_dts", [])],
+                           [float(x) for x in g.get("ratio", [])])
     data = {"rows": rows, "grid": g}
     h.save_json(out, "accuracy", data)
     return data

@@ -168,3 +168,122 @@ def update_modes(d0: np.ndarray, normal: np.ndarray, dr: np.ndarray, shear0: np.
     fric_change = fric_diff / max(fric_top, 1e-300)
     return (new_mode, new_tangent, new_dstar, d1, dr_t, along, total_shear, changed,
             closed_changed, fric_change)
+
+
+@nb.njit(cache=True)
+def _point_velocity(v: np.ndarray, x: float, y: float, z: float, out: np.ndarray) -> None:
+    """T(x) v: the velocity `out (3,)` of the point at `(x, y, z)` from the centroid of a
+    block moving with `v (12,)` (translation, rotation, strains with engineering shear)."""
+    out[0] = v[0] + v[4] * z - v[5] * y + v[6] * x + 0.5 * (v[11] * y + v[10] * z)
+    out[1] = v[1] + v[5] * x - v[3] * z + v[7] * y + 0.5 * (v[11] * x + v[9] * z)
+    out[2] = v[2] + v[3] * y - v[4] * x + v[8] * z + 0.5 * (v[10] * x + v[9] * y)
+
+
+@nb.njit(cache=True)
+def initial_modes(bi: np.ndarray, bj: np.ndarray, point_i: np.ndarray,
+                  point_j: np.ndarray, normal: np.ndarray, gap: np.ndarray,
+                  centroid: np.ndarray, velocity: np.ndarray, row: np.ndarray,
+                  mem_mode: np.ndarray, mem_shear: np.ndarray, mem_tangent: np.ndarray,
+                  mem_broken: np.ndarray, tan_phi: np.ndarray, bonded_joint: np.ndarray,
+                  first_step: bool, touch_gap: float, dt: float, kn: float, ks: float
+                  ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Modes, accumulated shear, tangents and broken bonds `(mode (c,), shear (c, 3),
+    tangent (c, 3), broken (c,))` at the start of a step.
+
+    A closed contact found again (`row >= 0` into the previous step's memory) inherits its
+    mode, its shear (in its new plane) and sliding direction; a new contact between
+    blocks that touch (gap ≤ `touch_gap`) follows Table 1: sliding when the shear spring
+    of its relative tangential velocity over Δt would beat friction, else locked, sliding
+    along that velocity. On the first step, touching contacts of joints with cohesion or
+    tensile strength (`bonded_joint`) are bonded and locked; contacts that form later are
+    born broken (friction only)."""
+    c = len(gap)
+    mode = np.zeros(c, dtype=np.int8)
+    shear = np.zeros((c, 3))
+    tangent = np.zeros((c, 3))
+    broken = np.zeros(c, dtype=np.bool_)
+    ui = np.empty(3)
+    uj = np.empty(3)
+    for k in range(c):
+        n0, n1, n2 = normal[k, 0], normal[k, 1], normal[k, 2]
+        r = row[k]
+        if r >= 0:
+            broken[k] = mem_broken[r]
+        elif not first_step:
+            broken[k] = True
+        if first_step and bonded_joint[k] and gap[k] <= touch_gap:
+            mode[k] = LOCKED
+        if r >= 0 and mem_mode[r] != OPEN:
+            mode[k] = mem_mode[r]
+            sn = mem_shear[r, 0] * n0 + mem_shear[r, 1] * n1 + mem_shear[r, 2] * n2
+            for j in range(3):
+                shear[k, j] = mem_shear[r, j] - sn * normal[k, j]
+            tn = mem_tangent[r, 0] * n0 + mem_tangent[r, 1] * n1 + mem_tangent[r, 2] * n2
+            t0 = mem_tangent[r, 0] - tn * n0
+            t1 = mem_tangent[r, 1] - tn * n1
+            t2 = mem_tangent[r, 2] - tn * n2
+            tl = np.sqrt(t0 * t0 + t1 * t1 + t2 * t2)
+            if tl > 0:
+                tangent[k, 0], tangent[k, 1], tangent[k, 2] = t0 / tl, t1 / tl, t2 / tl
+        elif gap[k] <= touch_gap and mode[k] == OPEN:
+            a, b = bi[k], bj[k]
+            _point_velocity(velocity[a], point_i[k, 0] - centroid[a, 0],
+                            point_i[k, 1] - centroid[a, 1], point_i[k, 2] - centroid[a, 2], ui)
+            _point_velocity(velocity[b], point_j[k, 0] - centroid[b, 0],
+                            point_j[k, 1] - centroid[b, 1], point_j[k, 2] - centroid[b, 2], uj)
+            w0, w1, w2 = ui[0] - uj[0], ui[1] - uj[1], ui[2] - uj[2]
+            wn = w0 * n0 + w1 * n1 + w2 * n2
+            w0, w1, w2 = w0 - wn * n0, w1 - wn * n1, w2 - wn * n2
+            vt = np.sqrt(w0 * w0 + w1 * w1 + w2 * w2)
+            mode[k] = SLIDING if vt * dt * ks > abs(gap[k]) * kn * tan_phi[k] else LOCKED
+            if vt > 0:
+                tangent[k, 0], tangent[k, 1], tangent[k, 2] = w0 / vt, w1 / vt, w2 / vt
+    return mode, shear, tangent, broken
+
+
+@nb.njit(cache=True)
+def step_results(d0: np.ndarray, d1: np.ndarray, normal: np.ndarray, shear0: np.ndarray,
+                 offset: np.ndarray, dr: np.ndarray, dr_t: np.ndarray, mode: np.ndarray,
+                 tangent: np.ndarray, fric: np.ndarray, fric_mag: np.ndarray, kn: float,
+                 ks: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, float, float]:
+    """Forces and energies of a converged step: `(normal_force (c,), shear_force (c, 3),
+    shear (c, 3), friction_work, spring_dissipation)`: normal force −kn d1 (compression
+    positive) of closed contacts; shear force on block i, −ks × the shear spring (locked)
+    minus the friction force; the shear spring stretch of locked contacts; the work of the
+    friction forces over the slips; and what the implicit penalty springs dissipated, ½ k
+    Δ² of each spring's change (β = ½, γ = 1) plus what springs that opened had stored."""
+    c = len(d0)
+    nf = np.zeros(c)
+    sf = np.zeros((c, 3))
+    stretch = np.zeros((c, 3))
+    fw = 0.0
+    num = 0.0
+    for k in range(c):
+        m = mode[k]
+        n0, n1, n2 = normal[k, 0], normal[k, 1], normal[k, 2]
+        fw += fric_mag[k] * (dr_t[k, 0] * tangent[k, 0] + dr_t[k, 1] * tangent[k, 1]
+                             + dr_t[k, 2] * tangent[k, 2])
+        s00, s01, s02 = shear0[k, 0], shear0[k, 1], shear0[k, 2]
+        ss0 = s00 * s00 + s01 * s01 + s02 * s02
+        for j in range(3):
+            sf[k, j] = -fric[k, j]
+        if m == OPEN:
+            if d0[k] < 0:  # a spring that opened gives up what it stored
+                num += 0.5 * kn * d0[k] * d0[k] + 0.5 * ks * ss0
+            continue
+        nf[k] = -kn * d1[k]
+        dd = d1[k] - d0[k]
+        num += 0.5 * kn * (dd * dd - max(d0[k], 0.0) ** 2)
+        if m == LOCKED:
+            r0, r1, r2 = s00 + offset[k, 0], s01 + offset[k, 1], s02 + offset[k, 2]
+            rn = r0 * n0 + r1 * n1 + r2 * n2
+            a0, a1, a2 = r0 - rn * n0, r1 - rn * n1, r2 - rn * n2  # tangential start
+            t0, t1, t2 = r0 + dr[k, 0], r1 + dr[k, 1], r2 + dr[k, 2]
+            tn = t0 * n0 + t1 * n1 + t2 * n2
+            stretch[k, 0], stretch[k, 1], stretch[k, 2] = t0 - tn * n0, t1 - tn * n1, \
+                t2 - tn * n2
+            for j in range(3):
+                sf[k, j] -= ks * stretch[k, j]
+            num += 0.5 * ks * (dr_t[k, 0] ** 2 + dr_t[k, 1] ** 2 + dr_t[k, 2] ** 2 + ss0
+                               - (a0 * a0 + a1 * a1 + a2 * a2))
+    return nf, sf, stretch, fw, num

@@ -159,3 +159,42 @@ def pcg_bsr(indptr: np.ndarray, indices: np.ndarray, data: np.ndarray, inv: np.n
                 p[i] = z[i] + beta * p[i]
         rz = rz_new
     return x, -1
+
+
+@nb.njit(cache=True)
+def cholesky(k: np.ndarray) -> tuple[np.ndarray, bool]:
+    """Lower Cholesky factor `L` of a small dense symmetric positive definite `k (n, n)`
+    (`(L, ok)`, ok False if k is not positive definite). For the few unknowns of a small
+    system a compiled loop beats LAPACK's call overhead."""
+    n = k.shape[0]
+    low = np.zeros((n, n))
+    for i in range(n):
+        for j in range(i + 1):
+            s = 0.5 * (k[i, j] + k[j, i])
+            for q in range(j):
+                s -= low[i, q] * low[j, q]
+            if i == j:
+                if not s > 0.0:
+                    return low, False
+                low[i, i] = np.sqrt(s)
+            else:
+                low[i, j] = s / low[j, j]
+    return low, True
+
+
+@nb.njit(cache=True)
+def cholesky_solve(low: np.ndarray, f: np.ndarray) -> np.ndarray:
+    """x with L Lᵀ x = f for the factor of :func:`cholesky`."""
+    n = low.shape[0]
+    y = np.empty(n)
+    for i in range(n):
+        s = f[i]
+        for q in range(i):
+            s -= low[i, q] * y[q]
+        y[i] = s / low[i, i]
+    for i in range(n - 1, -1, -1):
+        s = y[i]
+        for q in range(i + 1, n):
+            s -= low[q, i] * y[q]
+        y[i] = s / low[i, i]
+    return y

@@ -18,7 +18,6 @@ Conventions: `block_i > block_j`; the normal points from block j into block i;
 
 from __future__ import annotations
 
-import weakref
 from collections.abc import Sequence
 from dataclasses import dataclass
 
@@ -95,7 +94,11 @@ class _PieceTopo:
     vert_faces: np.ndarray  # (k, Df) incident real piece faces (pad -1)
 
 
-_TOPO_CACHE: dict[tuple[int, int, int], _PieceTopo] = {}
+#: piece topologies by content (face arrays and the block's surface vertices): blocks of
+#: one shape - the boxes of a stack, the slab and the cube of an incline, a block and its
+#: moved copies - share one entry; oldest first out beyond _TOPO_CACHE_SIZE entries
+_TOPO_CACHE: dict[tuple[bytes, ...], _PieceTopo] = {}
+_TOPO_CACHE_SIZE = 20000
 
 
 def _pad_rows(rows: list[list[int]], fill: int = -1) -> np.ndarray:
@@ -107,8 +110,9 @@ def _pad_rows(rows: list[list[int]], fill: int = -1) -> np.ndarray:
 
 
 def _piece_topology(piece: ConvexPiece, block: Polyhedron) -> _PieceTopo:
-    """Topology of `piece`, cached while its face arrays live (blocks keep them when moved)."""
-    key = (id(piece.face_indptr), id(piece.face_indices), id(block.face_indices))
+    """Topology of `piece` (cached by content, see :data:`_TOPO_CACHE`)."""
+    key = (piece.face_indptr.tobytes(), piece.face_indices.tobytes(),
+           np.asarray(piece.face_surface).tobytes(), block.surface_vertex_ids.tobytes())
     hit = _TOPO_CACHE.get(key)
     if hit is not None:
         return hit
@@ -152,8 +156,9 @@ def _piece_topology(piece: ConvexPiece, block: Polyhedron) -> _PieceTopo:
         np.isin(verts, block.surface_vertex_ids), _pad_rows(nb),
         _pad_rows(nb_real, 0).astype(bool), _pad_rows(vf),
     )
+    if len(_TOPO_CACHE) >= _TOPO_CACHE_SIZE:
+        _TOPO_CACHE.pop(next(iter(_TOPO_CACHE)))
     _TOPO_CACHE[key] = topo
-    weakref.finalize(piece.face_indices, _TOPO_CACHE.pop, key, None)
     return topo
 
 

@@ -13,8 +13,8 @@ from dataclasses import dataclass, field
 from functools import cached_property
 
 import numpy as np
-from scipy.spatial.transform import Rotation
 
+from engine._motion_kernels import rotation_matrices
 from engine.tolerances import DEFAULT_TOLERANCES, Tolerances
 
 FACE_TAG_BOUNDARY = -1  #: face on the domain boundary or of an explicit block
@@ -446,6 +446,19 @@ class Polyhedron:
         return self._mass[2]
 
     @cached_property
+    def width(self) -> float:
+        """How thick the block is where it is thinnest (m): the smallest extent of its
+        convex pieces across their own face planes. A unit cube is 1 m wide (its 2 V / A
+        is 1/3 m), a plate its thickness, an L block the thickness of its arms."""
+        out = np.inf
+        for piece in self.convex_pieces():
+            nrm, _ = face_normals_areas(self.vertices, piece.face_indptr, piece.face_indices)
+            nrm = nrm[np.linalg.norm(nrm, axis=1) > 0.5]  # degenerate faces: no plane
+            h = self.vertices[piece.vertex_ids] @ nrm.T  # (k vertices, m faces)
+            out = min(out, float((h.max(axis=0) - h.min(axis=0)).min()))
+        return out
+
+    @cached_property
     def bounds(self) -> np.ndarray:
         """Axis-aligned bounding box `(2, 3)`: min, max."""
         p = self.vertices[self.surface_vertex_ids]
@@ -472,5 +485,8 @@ class Polyhedron:
 
 
 def rotation_matrix(rotvec: np.ndarray) -> np.ndarray:
-    """Exact rotation matrix `(3, 3)` of a rotation vector (rad), Rodrigues' formula."""
-    return Rotation.from_rotvec(np.asarray(rotvec, float)).as_matrix()
+    """Exact rotation matrix `(3, 3)` of a rotation vector `(3,)` (rad), or matrices
+    `(n, 3, 3)` of vectors `(n, 3)`: Rodrigues' formula."""
+    rv = np.asarray(rotvec, dtype=np.float64)
+    out = rotation_matrices(np.ascontiguousarray(rv.reshape(-1, 3)))
+    return out[0] if rv.ndim == 1 else out

@@ -9,6 +9,7 @@ time step the run stops with a clear status and keeps what was recorded.
 
 from __future__ import annotations
 
+import dataclasses
 import time as _time
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -20,11 +21,13 @@ from scipy.spatial.transform import Rotation
 
 from engine import assembly as asm
 from engine._assembly_kernels import relative_displacement
-from engine._open_close_kernels import contact_loads, update_modes
+from engine._motion_kernels import block_vertices, move_blocks
+from engine._open_close_kernels import contact_loads, step_results, update_modes
+from engine._open_close_kernels import initial_modes as _initial_modes
 from engine.contacts import LOCKED, OPEN, SLIDING, ContactSet, assign_joint_materials
 from engine.detection import detect_contacts
 from engine.frame import Frame, Recorder
-from engine.geometry import Polyhedron, rotation_matrix
+from engine.geometry import Polyhedron
 from engine.model import Model
 from engine.solver import BlockJacobi, SolveError, make_solver
 from engine.tolerances import DEFAULT_TOLERANCES
@@ -175,19 +178,9 @@ def _rows_dot(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     return np.einsum("ij,ij->i", a, b)
 
 
-def _tangential(v: np.ndarray, n: np.ndarray) -> np.ndarray:
-    """The parts `(c, 3)` of vectors `v (c, 3)` in the planes of unit normals `n (c, 3)`."""
-    return v - _rows_dot(v, n)[:, None] * n
-
-
-def _strain_matrix(eps: np.ndarray) -> np.ndarray:
-    """Symmetric strain tensors `(n, 3, 3)` from Voigt engineering strains `(n, 6)`."""
-    e = np.zeros((len(eps), 3, 3))
-    e[:, 0, 0], e[:, 1, 1], e[:, 2, 2] = eps[:, 0], eps[:, 1], eps[:, 2]
-    e[:, 1, 2] = e[:, 2, 1] = 0.5 * eps[:, 3]
-    e[:, 0, 2] = e[:, 2, 0] = 0.5 * eps[:, 4]
-    e[:, 0, 1] = e[:, 1, 0] = 0.5 * eps[:, 5]
-    return e
+def _kinetic_energy(velocity: np.ndarray, mass: np.ndarray) -> float:
+    """½ Σ vᵀ M v (J) of block velocities `(n, 12)` and masses `(n, 12, 12)`."""
+    return 0.5 * float(np.sum(velocity * (mass @ velocity[:, :, None])[:, :, 0]))
 
 
 class Simulation:
@@ -204,7 +197,7 @@ class Simulation:
         self.c0 = np.array([p.centroid for p in self.polys0]).reshape(n, 3)
         #: all vertices stacked `(V, 3)` relative to their block centroid, and their block
         counts = [len(p) for p in self.points0]
-        self._vertex_block = np.repeat(np.arange(n), counts)
+        self._vertex_block = np.repeat(np.arange(n, dtype=np.int64), counts)
         self._vertex_start = np.concatenate([[0], np.cumsum(counts)[:-1]]).astype(np.int64)
         self._vertex_rel0 = (np.concatenate(self.points0) - self.c0[self._vertex_block]
                              if n else np.zeros((0, 3)))
@@ -235,8 +228,9 @@ class Simulation:
         self.scale = model.scale
         thickness = np.array([2.0 * p.volume / max(p.face_areas.sum(), 1e-300)
                               for p in self.polys0])
-        # thin blocks, fixed or not, bound the step so nothing tunnels through them
-        thin = thickness.min() if n else self.scale
+        # thin blocks, fixed or not, bound the step so nothing tunnels through them: no
+        # point moves more than half the width of the thinnest block in a step
+        thin = min(p.width for p in self.polys0) if n else self.scale
         #: largest displacement of any point in one step (paper eq. 50 in spirit)
         self.max_step_displacement = min(c.max_displacement_ratio * self.scale, 0.5 * thin)
         self.search_distance = 2.0 * self.max_step_displacement
@@ -290,6 +284,7 @@ class Simulation:
             * self.scale, 0.5 * self.kn * self.max_step_displacement**2)
         #: wall time (s) per phase: detection, assembly, solve, open_close, update, output
         self.timings: dict[str, float] = {}
+        self._mass_cache: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
 
     # ------------------------------------------------------------------ geometry
     def map_point(self, b: int, point0: np.ndarray) -> np.ndarray:
@@ -299,8 +294,8 @@ class Simulation:
 
     def current_vertices(self) -> np.ndarray:
         """Current positions `(V, 3)` of all blocks' vertices, stacked in block order."""
-        s, vb = self.state, self._vertex_block
-        return s.centroid[vb] + np.einsum("vij,vj->vi", s.affine[vb], self._vertex_rel0)
+        s = self.state
+        return block_vertices(s.centroid, s.affine, self._vertex_block, self._vertex_rel0)
 
     def current_polyhedra(self) -> list[Polyhedron]:
         """The blocks as polyhedra at the current state."""
@@ -308,11 +303,16 @@ class Simulation:
         return [p.moved(x) for p, x in zip(self.polys0, pts, strict=True)]
 
     def mass_properties(self) -> tuple[np.ndarray, np.ndarray]:
-        """Current volume `(n,)` and second moments `(n, 3, 3)` (affine images of the initial)."""
+        """Current volume `(n,)` and second moments `(n, 3, 3)` (affine images of the initial;
+        computed once per state: the step replaces the affine array)."""
         a = self.state.affine
+        hit = self._mass_cache
+        if hit is not None and hit[0] is a:
+            return hit[1], hit[2]
         det = np.linalg.det(a)
         vol = self.volume0 * det
         second = det[:, None, None] * (a @ self.second0 @ np.transpose(a, (0, 2, 1)))
+        self._mass_cache = (a, vol, second)
         return vol, second
 
     # ------------------------------------------------------------------ contacts
@@ -428,59 +428,24 @@ class Simulation:
         return int(bad.sum())
 
     def initial_modes(self, contacts: ContactSet, dt: float) -> tuple[np.ndarray, ...]:
-        """Modes, accumulated shear and tangents at the start of the step.
+        """Modes, accumulated shear, tangents and broken bonds at the start of the step.
 
         Inherited from the previous step for the same closed contact, else the paper's
-        Table 1 from the penetration and the relative tangential velocity.
+        Table 1 from the penetration and the relative tangential velocity, where blocks
+        that already touch (cut blocks, stacked blocks) start closed so a resting mass
+        carries its weight from the first cycle instead of closing one layer of contacts
+        per open-close iteration. Joints are bonded (cohesion, tensile strength) where
+        blocks touch at the start; a contact that forms later has only friction.
         """
         s = self.state
-        c = len(contacts)
-        mode = np.full(c, OPEN, dtype=np.int8)
-        shear = np.zeros((c, 3))
-        tangent = np.zeros((c, 3))
-        broken = np.zeros(c, dtype=bool)
-        if c == 0:
-            return mode, shear, tangent, broken
-        ti = asm.displacement_matrices(contacts.point_i, s.centroid[contacts.block_i])
-        tj = asm.displacement_matrices(contacts.point_j, s.centroid[contacts.block_j])
-        vrel = (np.einsum("cij,cj->ci", ti, s.velocity[contacts.block_i])
-                - np.einsum("cij,cj->ci", tj, s.velocity[contacts.block_j]))
-        n = contacts.normal
-        vt = vrel - _rows_dot(vrel, n)[:, None] * n
-        vt_norm = np.linalg.norm(vt, axis=1)
-        tan_phi = self.tan_phi[contacts.joint_material]
-        row = s.memory.find(contacts.key)
-        broken[row >= 0] = s.memory.broken[row[row >= 0]]
-        # joints are bonded (cohesion, tensile strength) where blocks touch at the start;
-        # a contact that forms later has only friction
-        if s.step == 0:
-            strength = (self.cohesion[contacts.joint_material] > 0) | (
-                self.tension[contacts.joint_material] > 0)
-            bonded = strength & (contacts.gap <= self.touch_gap)
-            mode[bonded] = LOCKED
-        else:
-            broken[row < 0] = True
-        # closed contacts found again inherit their mode; the others follow Table 1,
-        # where blocks that already touch (cut blocks, stacked blocks) start closed so a
-        # resting mass carries its weight from the first cycle instead of closing one
-        # layer of contacts per open-close iteration
-        old = row >= 0
-        old[old] = s.memory.mode[row[old]] != OPEN
-        new = ~old & (contacts.gap <= self.touch_gap) & (mode == OPEN)
-        sliding = vt_norm * dt * self.ks > np.abs(contacts.gap) * self.kn * tan_phi
-        mode[new] = np.where(sliding[new], SLIDING, LOCKED)
-        moving = new & (vt_norm > 0)
-        tangent[moving] = vt[moving] / vt_norm[moving, None]
-        if np.any(old):
-            r, no = row[old], n[old]
-            mode[old] = s.memory.mode[r]
-            sh = s.memory.shear[r]
-            shear[old] = sh - _rows_dot(sh, no)[:, None] * no
-            tg = s.memory.tangent[r]
-            tg = tg - _rows_dot(tg, no)[:, None] * no
-            tn = np.linalg.norm(tg, axis=1)
-            tangent[old] = np.where(tn[:, None] > 0, tg / np.maximum(tn, 1e-300)[:, None], 0.0)
-        return mode, shear, tangent, broken
+        mem = s.memory
+        jm = contacts.joint_material
+        return _initial_modes(
+            contacts.block_i, contacts.block_j, contacts.point_i, contacts.point_j,
+            contacts.normal, contacts.gap, s.centroid, s.velocity, mem.find(contacts.key),
+            mem.mode, mem.shear, mem.tangent, mem.broken, self.tan_phi[jm],
+            (self.cohesion[jm] > 0) | (self.tension[jm] > 0), s.step == 0, self.touch_gap,
+            dt, self.kn, self.ks)
 
     def solve_step(self, contacts: ContactSet, dt: float, areas: np.ndarray) -> StepResult:
         """Open-close iteration for one step at time step `dt` (raises StepFailure)."""
@@ -604,23 +569,9 @@ class Simulation:
                     raise StepFailure(
                         f"open-close iteration did not settle: {int(driven.sum())} sliding "
                         "contact(s) reversed against their friction")
-                closed = mode != OPEN
-                locked = mode == LOCKED
-                ra = shear0 + offset
-                total_shear = _tangential(ra + dr, n)
-                nf = np.where(closed, -self.kn * d1, 0.0)
-                sf = np.where(locked[:, None], -self.ks * total_shear, 0.0) - fric
-                fw = float(np.sum(fric_mag * _rows_dot(dr_t, tangent)))
-                # the implicit penalty springs dissipate ½ k Δ² per step (β = ½, γ = 1)
-                s0 = _tangential(ra, n)
-                num = 0.5 * self.kn * float(np.sum(
-                    closed * ((d1 - d0) ** 2 - np.maximum(d0, 0.0) ** 2)))
-                num += 0.5 * self.ks * float(np.sum(locked * (
-                    _rows_dot(dr_t, dr_t) + _rows_dot(shear0, shear0) - _rows_dot(s0, s0))))
-                # springs that open give up what they stored at the start of the step
-                opened = ~closed & (d0 < 0)
-                num += 0.5 * self.kn * float(np.sum(opened * d0**2))
-                num += 0.5 * self.ks * float(np.sum(opened * _rows_dot(shear0, shear0)))
+                nf, sf, shear1, fw, num = step_results(
+                    d0, d1, n, shear0, offset, dr, dr_t, mode, tangent, fric, fric_mag,
+                    self.kn, self.ks)
                 d = np.zeros((self.n, 12))
                 m = self.dof_map >= 0
                 d[m] = x[self.dof_map[m]]
@@ -628,14 +579,14 @@ class Simulation:
                 # the implicit springs only take energy out; one that gives some back (a
                 # spring re-locked with an offset from an earlier cycle of a fast step) would
                 # accelerate the blocks: redo the step smaller
-                kinetic = 0.5 * float(np.einsum("ni,nij,nj->", s.velocity, mass, s.velocity))
+                kinetic = _kinetic_energy(s.velocity, mass)
                 if -num > SPRING_ENERGY_RTOL * kinetic + self.energy_floor:
                     raise StepFailure(
                         f"open-close iteration settled with springs that release {-num:.3g} J "
                         "they never stored")
                 return StepResult(
-                    d=d, contacts=_with_modes(contacts, mode, tangent, d1),
-                    gap1=d1, shear=np.where(locked[:, None], total_shear, 0.0), slip=dr_t,
+                    d=d, contacts=_with_modes(contacts, mode, tangent),
+                    gap1=d1, shear=shear1, slip=dr_t,
                     normal_force=nf, shear_force=sf, friction_work=fw, iterations=it,
                     mode_changes=mode_changes, numerical_dissipation=num, broken=broken,
                 )
@@ -740,11 +691,9 @@ class Simulation:
             s.energies["external_work"] += float(f @ (t @ d[b]))
         s.energies["friction_dissipation"] += res.friction_work
         s.energies["numerical_dissipation"] += res.numerical_dissipation
-        rot = rotation_matrix(d[:, 3:6]).reshape(self.n, 3, 3)
-        stretch = np.eye(3)[None] + _strain_matrix(d[:, 6:])
-        s.affine = np.einsum("nij,njk,nkl->nil", rot, stretch, s.affine)
-        s.rotation = np.einsum("nij,njk->nik", rot, s.rotation)
-        s.centroid = s.centroid + d[:, :3]
+        s.centroid, s.affine, s.rotation = (s.centroid.copy(), s.affine.copy(),
+                                            s.rotation.copy())
+        move_blocks(d, s.centroid, s.affine, s.rotation)
         v1 = 2.0 * d / dt - s.velocity
         v1[self.fixed] = 0.0
         s.velocity = self.model.controls.dynamic_ratio * v1
@@ -835,7 +784,7 @@ class Simulation:
         s = self.state
         vol, second = self.mass_properties()
         mass = asm.mass_matrices(self.density, vol, second)
-        kinetic = 0.5 * float(np.einsum("ni,nij,nj->", s.velocity, mass, s.velocity))
+        kinetic = _kinetic_energy(s.velocity, mass)
         contact = 0.0
         if res is not None and len(res.contacts):
             closed = res.contacts.mode != OPEN
@@ -895,13 +844,10 @@ class Simulation:
         return out
 
 
-def _with_modes(contacts: ContactSet, mode: np.ndarray, tangent: np.ndarray,
-                gap1: np.ndarray) -> ContactSet:
-    """A copy of `contacts` with the converged modes and tangents."""
-    out = contacts.subset(np.arange(len(contacts)))
-    out.mode = mode.astype(np.int8)
-    out.tangent = tangent
-    return out
+def _with_modes(contacts: ContactSet, mode: np.ndarray, tangent: np.ndarray) -> ContactSet:
+    """`contacts` with the converged modes and tangents (the other arrays shared: nothing
+    writes to a step's contacts after detection)."""
+    return dataclasses.replace(contacts, mode=mode.astype(np.int8), tangent=tangent)
 
 
 def run(

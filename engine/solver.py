@@ -14,7 +14,7 @@ import scipy.linalg as sla
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
-from engine._solver_kernels import invert_spd_blocks, pcg_bsr
+from engine._solver_kernels import cholesky, cholesky_solve, invert_spd_blocks, pcg_bsr
 
 #: systems with more unknowns use conjugate gradients. Measured on real DDA systems
 #: (`python benchmarks/bench_solver.py`, cubes in contact, 2 cores): SuperLU 12.7 ms vs
@@ -29,19 +29,24 @@ class SolveError(RuntimeError):
 
 
 def _dense_solver(k: np.ndarray) -> Callable[[np.ndarray, np.ndarray | None], np.ndarray]:
-    """Cholesky of a small dense K (symmetric positive definite), LU if it is not."""
-    try:
-        fac = sla.cho_factor(k, check_finite=True)
-        solve_with = sla.cho_solve
-    except (sla.LinAlgError, ValueError):
+    """Cholesky of a small dense K (symmetric positive definite; compiled), LU if it is
+    not."""
+    k = np.ascontiguousarray(k, dtype=np.float64)
+    low, ok = cholesky(k) if np.all(np.isfinite(k)) else (k, False)
+    if ok:
+        def solve_with(f: np.ndarray) -> np.ndarray:
+            return cholesky_solve(low, np.ascontiguousarray(f, dtype=np.float64))
+    else:
         try:
             fac = sla.lu_factor(k, check_finite=True)
         except (sla.LinAlgError, ValueError) as exc:
             raise SolveError(f"singular system: {exc}") from exc
-        solve_with = sla.lu_solve
+
+        def solve_with(f: np.ndarray) -> np.ndarray:
+            return sla.lu_solve(fac, f)
 
     def dense(f: np.ndarray, x0: np.ndarray | None = None) -> np.ndarray:
-        x = solve_with(fac, f)
+        x = solve_with(f)
         if not np.all(np.isfinite(x)):
             raise SolveError("dense solve produced non-finite values")
         return x

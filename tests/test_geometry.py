@@ -167,3 +167,12 @@ def test_polyhedron_from_faces_keeps_tags_and_moves() -> None:
     q = p.moved(v + 2.0)
     assert q.face_tags.tolist() == [3, 3, -1, -1, 5, -1]
     np.testing.assert_allclose(q.centroid, p.centroid + 2.0)
+
+
+def test_width_is_the_thinnest_extent() -> None:
+    """A cube is as wide as its side, a plate as its thickness, an L prism as its arms."""
+    from engine.cutting import convex_decomposition
+
+    assert box([0, 0, 0], [1, 1, 1]).width == pytest.approx(1.0)
+    assert box([0, 0, 0], [5, 5, 0.05]).width == pytest.approx(0.05)
+    assert convex_decomposition(prism(np.array(L_BASE, float), 2.0)).width == pytest.approx(1.0)
