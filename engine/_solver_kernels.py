@@ -13,6 +13,41 @@ import numpy as np
 
 
 @nb.njit(cache=True)
+def _factor(a: np.ndarray, low: np.ndarray) -> bool:
+    """Lower Cholesky factor of the symmetric positive definite `a (n, n)` into `low`
+    (its upper part untouched); False if `a` is not positive definite."""
+    n = a.shape[0]
+    for i in range(n):
+        for j in range(i + 1):
+            s = 0.5 * (a[i, j] + a[j, i])
+            for q in range(j):
+                s -= low[i, q] * low[j, q]
+            if i == j:
+                if not s > 0.0:
+                    return False
+                low[i, i] = np.sqrt(s)
+            else:
+                low[i, j] = s / low[j, j]
+    return True
+
+
+@nb.njit(cache=True)
+def _solve_factored(low: np.ndarray, x: np.ndarray) -> None:
+    """Overwrite `x` with the solution of L Lᵀ y = x (L the factor of :func:`_factor`)."""
+    n = low.shape[0]
+    for i in range(n):
+        s = x[i]
+        for q in range(i):
+            s -= low[i, q] * x[q]
+        x[i] = s / low[i, i]
+    for i in range(n - 1, -1, -1):
+        s = x[i]
+        for q in range(i + 1, n):
+            s -= low[q, i] * x[q]
+        x[i] = s / low[i, i]
+
+
+@nb.njit(cache=True)
 def invert_spd_blocks(diag: np.ndarray) -> tuple[np.ndarray, bool]:
     """Inverses of the symmetric positive definite blocks `diag (m, b, b)` by Cholesky;
     `(inverse (m, b, b), ok)`, ok False if a block is not positive definite."""
@@ -21,29 +56,12 @@ def invert_spd_blocks(diag: np.ndarray) -> tuple[np.ndarray, bool]:
     low = np.zeros((b, b))
     col = np.zeros(b)
     for k in range(m):
-        a = diag[k]
-        for i in range(b):
-            for j in range(i + 1):
-                s = 0.5 * (a[i, j] + a[j, i])
-                for q in range(j):
-                    s -= low[i, q] * low[j, q]
-                if i == j:
-                    if not s > 0.0:
-                        return out, False
-                    low[i, i] = np.sqrt(s)
-                else:
-                    low[i, j] = s / low[j, j]
+        if not _factor(diag[k], low):
+            return out, False
         for e in range(b):  # column e of the inverse: L Lᵀ x = e
-            for i in range(b):
-                s = 1.0 if i == e else 0.0
-                for q in range(i):
-                    s -= low[i, q] * col[q]
-                col[i] = s / low[i, i]
-            for i in range(b - 1, -1, -1):
-                s = col[i]
-                for q in range(i + 1, b):
-                    s -= low[q, i] * col[q]
-                col[i] = s / low[i, i]
+            col[:] = 0.0
+            col[e] = 1.0
+            _solve_factored(low, col)
             for i in range(b):
                 out[k, i, e] = col[i]
     return out, True
@@ -166,35 +184,13 @@ def cholesky(k: np.ndarray) -> tuple[np.ndarray, bool]:
     """Lower Cholesky factor `L` of a small dense symmetric positive definite `k (n, n)`
     (`(L, ok)`, ok False if k is not positive definite). For the few unknowns of a small
     system a compiled loop beats LAPACK's call overhead."""
-    n = k.shape[0]
-    low = np.zeros((n, n))
-    for i in range(n):
-        for j in range(i + 1):
-            s = 0.5 * (k[i, j] + k[j, i])
-            for q in range(j):
-                s -= low[i, q] * low[j, q]
-            if i == j:
-                if not s > 0.0:
-                    return low, False
-                low[i, i] = np.sqrt(s)
-            else:
-                low[i, j] = s / low[j, j]
-    return low, True
+    low = np.zeros(k.shape)
+    return low, _factor(k, low)
 
 
 @nb.njit(cache=True)
 def cholesky_solve(low: np.ndarray, f: np.ndarray) -> np.ndarray:
     """x with L Lᵀ x = f for the factor of :func:`cholesky`."""
-    n = low.shape[0]
-    y = np.empty(n)
-    for i in range(n):
-        s = f[i]
-        for q in range(i):
-            s -= low[i, q] * y[q]
-        y[i] = s / low[i, i]
-    for i in range(n - 1, -1, -1):
-        s = y[i]
-        for q in range(i + 1, n):
-            s -= low[q, i] * y[q]
-        y[i] = s / low[i, i]
-    return y
+    x = f.copy()
+    _solve_factored(low, x)
+    return x
