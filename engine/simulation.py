@@ -386,14 +386,19 @@ class Simulation:
         return kb, fb, mass
 
     def plausible_gaps(self, contacts: ContactSet) -> int:
-        """Relax contacts that report an implausibly deep penetration; returns how many.
+        """Start no spring with energy it never stored; returns how many contacts were
+        found implausibly deep (detection artefacts).
 
         Blocks end a step with the penetrations of its converged contacts, and the next
         step starts from those positions: a contact of a block pair cannot start deeper
         than that pair's deepest penetration at the end of the last step (twice it, plus
-        the rotation update's second-order slack). A deeper one is a detection artefact
-        (features passing each other at a convex edge); a penalty spring started there
-        would inject energy, so its initial gap is limited to the plausible depth.
+        a slack of 1e-6 × the model size). A deeper one is a detection artefact (features
+        passing each other at a convex edge). A contact found again starts no deeper than
+        it ended (plus the exact rotation's second-order shift of its points), where
+        re-detection picks a different plane (vertex-vertex, vertex-edge); one that ended
+        open (pressed in within the open-close hysteresis) stored nothing and starts
+        unstretched. A penalty spring started deeper would push the blocks apart with
+        energy from nowhere; its initial gap is limited to the plausible depth.
         """
         s = self.state
         if s.step == 0 or not len(contacts):
@@ -403,7 +408,7 @@ class Simulation:
         mem = s.memory
         n = self.n
         slack = 1e-6 * self.scale
-        allowed = np.full(len(contacts), slack)
+        plausible = np.full(len(contacts), slack)  # beyond it: an artefact (counted)
         if len(mem.key):
             pair_keys = mem.key[:, 0] * n + mem.key[:, 2]
             uniq, inv = np.unique(pair_keys, return_inverse=True)
@@ -412,20 +417,22 @@ class Simulation:
             q = contacts.block_i * n + contacts.block_j
             pos = np.minimum(np.searchsorted(uniq, q), len(uniq) - 1)
             found = uniq[pos] == q
-            allowed[found] += 2.0 * pair_prev[pos[found]]
-            # a contact found again starts no deeper than it ended (plus the exact rotation's
-            # second-order shift of its points): where re-detection picks a different plane
-            # (vertex-vertex, vertex-edge) the spring must not start with more energy
-            row = mem.find(contacts.key)
-            again = row >= 0
-            if np.any(again) and self.last is not None:
-                turn = np.linalg.norm(self.last.d[:, 3:6], axis=1) ** 2 * self.radius
-                second = 0.5 * (turn[contacts.block_i] + turn[contacts.block_j])
-                own = slack + second + np.maximum(-mem.gap[row], 0.0)
-                allowed[again] = np.minimum(allowed[again], own[again])
-        bad = contacts.gap < -allowed
-        contacts.gap[bad] = -allowed[bad]
-        return int(bad.sum())
+            plausible[found] += 2.0 * pair_prev[pos[found]]
+        allowed = plausible.copy()  # the depth a spring may start at
+        row = mem.find(contacts.key)
+        again = row >= 0
+        if np.any(again) and self.last is not None:
+            turn = np.linalg.norm(self.last.d[:, 3:6], axis=1) ** 2 * self.radius
+            second = 0.5 * (turn[contacts.block_i] + turn[contacts.block_j])
+            r = row[again]
+            stored = np.where(mem.mode[r] != OPEN, np.maximum(-mem.gap[r], 0.0), 0.0)
+            own = second[again] + stored
+            plausible[again] = np.minimum(plausible[again], slack + own)
+            allowed[again] = np.minimum(allowed[again], self.touch_gap + own)
+        artefacts = int(np.sum(contacts.gap < -plausible))
+        deep = contacts.gap < -allowed
+        contacts.gap[deep] = -allowed[deep]
+        return artefacts
 
     def initial_modes(self, contacts: ContactSet, dt: float) -> tuple[np.ndarray, ...]:
         """Modes, accumulated shear, tangents and broken bonds at the start of the step.
@@ -699,18 +706,21 @@ class Simulation:
         s.velocity = self.model.controls.dynamic_ratio * v1
         if self.elastic:
             s.stress = s.stress + np.einsum("nij,nj->ni", self.emat, d[:, 6:])
-        # contact memory for the next step: closed contacts, and broken ones (stay broken)
+        # contact memory for the next step: closed contacts, broken ones (stay broken) and
+        # open ones pressed in within the open-close hysteresis (their springs start the
+        # next step unstretched, see plausible_gaps)
         cs = res.contacts
         broken = res.broken if res.broken is not None else np.zeros(len(cs), dtype=bool)
-        keep = (cs.mode != OPEN) | broken
+        keep = (cs.mode != OPEN) | broken | (res.gap1 < 0)
         slip = res.slip[keep]
         slip_norm = np.linalg.norm(slip, axis=1)
         # sliding direction for the next step: this step's slip (paper eq. 7)
         big = slip_norm > 1e-14 * self.scale
         tangent = np.where(big[:, None], slip / np.maximum(slip_norm, 1e-300)[:, None],
                            cs.tangent[keep])
+        # a contact that slid or ended open has lost its bond (cohesion, tensile strength)
         memory = ContactMemory(key=cs.key[keep], mode=cs.mode[keep], shear=res.shear[keep],
-                               tangent=tangent, broken=broken[keep] | (cs.mode[keep] == SLIDING),
+                               tangent=tangent, broken=broken[keep] | (cs.mode[keep] != LOCKED),
                                gap=res.gap1[keep])
         s.memory = memory
         s.time += dt
