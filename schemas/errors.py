@@ -60,6 +60,19 @@ def fmt_num(value: Any) -> str:
     return format(value, ".10g")
 
 
+def fmt_count(n: float) -> str:
+    """A large count rounded for a message: 4,630 / 46,000 / 4.63 million / 2.1e+12."""
+    if n < 1e4:
+        return f"{n:,.0f}"
+    if n < 1e6:
+        return f"{round(n, -3):,.0f}"
+    if n < 1e9:
+        return f"{n / 1e6:.3g} million"
+    if n < 1e12:
+        return f"{n / 1e9:.3g} billion"
+    return f"{n:.2g}"
+
+
 def fmt_point(p: Sequence[float]) -> str:
     """A point as `(0, 0, 99)`."""
     return "(" + ", ".join(fmt_num(float(x)) for x in p) + ")"

@@ -23,7 +23,14 @@ from pydantic import (
     model_validator,
 )
 
-from schemas.errors import Problems, SceneError, fmt_num, format_loc, from_validation_error
+from schemas.errors import (
+    Problems,
+    SceneError,
+    fmt_count,
+    fmt_num,
+    format_loc,
+    from_validation_error,
+)
 
 #: version of the scene format; a scene may state it as ``"schema_version"``
 SCHEMA_VERSION = "1.0"
@@ -34,7 +41,7 @@ class Limits:
 
     #: vertices in all explicit blocks, the domain polyhedron and joint polygons
     max_vertices = 200_000
-    #: explicit blocks
+    #: explicit blocks; also the blocks the joints cut the domain into (estimated first)
     max_blocks = 20_000
     #: joint planes after expanding joint sets over the domain
     max_joint_planes = 2_000
@@ -440,18 +447,87 @@ def _count_vertices(scene: Scene) -> int:
     return n
 
 
-def _domain_diagonal(scene: Scene) -> float | None:
+def _domain_bounds(scene: Scene) -> tuple[list[float], list[float]] | None:
+    """Corners `(lo, hi)` of the domain's bounding box (None without a domain)."""
     d = scene.domain
     if d is None:
         return None
     if d.box is not None:
-        lo, hi = d.box.min, d.box.max
-    elif d.polyhedron.vertices:
-        lo = [min(v[i] for v in d.polyhedron.vertices) for i in range(3)]
-        hi = [max(v[i] for v in d.polyhedron.vertices) for i in range(3)]
-    else:
-        return None
-    return math.dist(lo, hi)
+        return list(d.box.min), list(d.box.max)
+    if d.polyhedron.vertices:
+        vs = d.polyhedron.vertices
+        return [min(v[i] for v in vs) for i in range(3)], [max(v[i] for v in vs) for i in range(3)]
+    return None
+
+
+def _domain_diagonal(scene: Scene) -> float | None:
+    bounds = _domain_bounds(scene)
+    return None if bounds is None else math.dist(*bounds)
+
+
+def _elementary(values: list[float], k: int) -> float:
+    """Elementary symmetric polynomial e_k of `values` (sum of products of k of them)."""
+    e = [1.0] + [0.0] * k
+    for v in values:
+        for j in range(k, 0, -1):
+            e[j] += e[j - 1] * v
+    return e[k]
+
+
+#: direction families beyond which pairs and triples are bounded instead of summed
+_EXACT_FAMILIES = 60
+
+
+def estimate_cut_blocks(scene: Scene) -> float:
+    """About how many blocks the joints cut the domain into, before any cutting (0 without
+    a domain, 1 without joints).
+
+    Planes in general position cut a convex region into 1 + P + L + V pieces: P planes, L
+    lines where two of them meet and V points where three meet, counting those that reach
+    the region. Over the domain's bounding box (sides a, b, c), a family of parallel planes
+    (unit normal n, density ρ per metre: 1 / spacing, summed over parallel sets) gives
+    ρ (|n|·(a, b, c)) planes, two families ρ ρ' (|n × n'|·(bc, ac, ab)) lines and three
+    ρ ρ' ρ'' |det(n, n', n'')| abc points. Exact for sets normal to a box's sides; joints
+    with an extent count as persistent, so it overestimates those.
+    """
+    bounds = _domain_bounds(scene)
+    if bounds is None:
+        return 0.0
+    a, b, c = (max(hi - lo, 0.0) for lo, hi in zip(*bounds, strict=True))
+    families: list[tuple[tuple[float, float, float], float]] = []  # (normal, density)
+    for j in scene.joints:
+        d, az = math.radians(j.dip), math.radians(j.dip_direction)
+        n = (math.sin(d) * math.sin(az), math.sin(d) * math.cos(az), math.cos(d))
+        width = abs(n[0]) * a + abs(n[1]) * b + abs(n[2]) * c
+        if not width > 0:
+            continue
+        rho = 1.0 / j.spacing if j.spacing else 1.0 / width  # a single joint: one plane
+        for k, (m, r) in enumerate(families):
+            if abs(n[0] * m[0] + n[1] * m[1] + n[2] * m[2]) > 1 - 1e-9:
+                families[k] = (m, r + rho)
+                break
+        else:
+            families.append((n, rho))
+    planes = sum(r * (abs(n[0]) * a + abs(n[1]) * b + abs(n[2]) * c) for n, r in families)
+    rhos = [r for _, r in families]
+    if len(families) > _EXACT_FAMILIES:  # |n × n'| and |det| are at most 1
+        return 1 + planes + _elementary(rhos, 2) * (b * c + a * c + a * b) \
+            + _elementary(rhos, 3) * a * b * c
+
+    def cross(u: tuple[float, ...], v: tuple[float, ...]) -> tuple[float, float, float]:
+        return (u[1] * v[2] - u[2] * v[1], u[2] * v[0] - u[0] * v[2],
+                u[0] * v[1] - u[1] * v[0])
+
+    lines = points = 0.0
+    for i, (ni, ri) in enumerate(families):
+        for k in range(i + 1, len(families)):
+            nk, rk = families[k]
+            x = cross(ni, nk)
+            lines += ri * rk * (abs(x[0]) * b * c + abs(x[1]) * a * c + abs(x[2]) * a * b)
+            for nl, rl in families[k + 1:]:
+                det = abs(x[0] * nl[0] + x[1] * nl[1] + x[2] * nl[2])
+                points += ri * rk * rl * det * a * b * c
+    return 1 + planes + lines + points
 
 
 def scene_problems(scene: Scene) -> list[dict[str, str]]:
@@ -529,6 +605,9 @@ def scene_problems(scene: Scene) -> list[dict[str, str]]:
         if planes > Limits.max_joint_planes:
             p.add("joints", f"the joint sets make about {planes:,.0f} planes across the domain; "
                   f"the limit is {Limits.max_joint_planes:,} (increase the spacings)")
+        elif (n := estimate_cut_blocks(scene)) > Limits.max_blocks:
+            p.add("joints", f"the joints would cut the domain into about {fmt_count(n)} "
+                  f"blocks; the limit is {Limits.max_blocks:,} (increase the spacings)")
     a = scene.analysis
     steps = a.duration / a.time_step
     if steps > Limits.max_steps:

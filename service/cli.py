@@ -27,6 +27,7 @@ from engine.simulation import STATUS_COMPLETED, Progress, run
 from schemas.convert import BuildResult, build_model
 from schemas.errors import SceneError
 from schemas.scene import SCHEMA_VERSION, scene_json_schema
+from service.worker import add_arguments as worker_options
 
 EXIT_OK, EXIT_IO, EXIT_SCENE, EXIT_RUN = 0, 1, 2, 3
 
@@ -338,15 +339,45 @@ def cmd_fos(args: argparse.Namespace) -> int:
     return EXIT_OK if result.status == STATUS_COMPLETED else EXIT_RUN
 
 
+def _listed(values: list[str] | None) -> list[str] | None:
+    """Values of a repeatable option that also takes comma-separated lists."""
+    if values is None:
+        return None
+    return [v.strip() for value in values for v in value.split(",") if v.strip()]
+
+
 def cmd_plot(args: argparse.Namespace) -> int:
     """PNG plots of a result file: histories, energy balance, snapshots."""
-    from engine.plots import plot_all  # matplotlib only when plotting
+    from engine.plots import plot_all, snapshot_steps  # matplotlib only when plotting
+    from engine.results import open_result
 
+    blocks = _listed(args.blocks)
     try:
-        paths = plot_all(args.result, args.out)
+        times = None if args.time is None else [float(t) for t in _listed(args.time) or []]
+        steps = None if args.step is None else [int(n) for n in _listed(args.step) or []]
+    except ValueError as exc:
+        print(f"--time / --step: not a number: {exc}", file=sys.stderr)
+        return EXIT_SCENE
+    try:
+        result = open_result(args.result)
     except (OSError, KeyError, ValueError) as exc:
         print(f"cannot plot {args.result}: {exc}", file=sys.stderr)
         return EXIT_IO
+    with result:
+        try:  # the choices, against the file: bad arguments exit 2
+            for b in blocks or []:
+                result.block_index(b)
+            snapshot_steps(result, times, steps)
+        except (KeyError, ValueError) as exc:
+            names = ", ".join(result.block_names)
+            hint = f" (blocks: {names})" if isinstance(exc, KeyError) else ""
+            print(f"{exc.args[0] if exc.args else exc}{hint}", file=sys.stderr)
+            return EXIT_SCENE
+        try:
+            paths = plot_all(result, args.out, blocks=blocks, times=times, steps=steps)
+        except (OSError, KeyError, ValueError) as exc:
+            print(f"cannot plot {args.result}: {exc}", file=sys.stderr)
+            return EXIT_IO
     for p in paths:
         print(p)
     return EXIT_OK
@@ -364,10 +395,10 @@ def cmd_serve(args: argparse.Namespace) -> int:
 
 
 def cmd_worker(args: argparse.Namespace) -> int:
-    """Start one scale-out worker on the Redis queue."""
-    from service.worker import main as worker_main
+    """Start one scale-out worker on the Redis queue (options: service.worker)."""
+    from service.worker import run as run_worker
 
-    return int(worker_main(args.worker_args))
+    return run_worker(args)
 
 
 def cmd_submit(args: argparse.Namespace) -> int:
@@ -437,6 +468,15 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("plot", help="PNG plots of a result file")
     p.add_argument("result", help="HDF5 result file")
     p.add_argument("--out", metavar="DIR", help="output folder (default: beside the result)")
+    p.add_argument("--blocks", metavar="NAMES", action="append",
+                   help="blocks in the histories, by name (comma-separated or repeated; "
+                        "default: the free blocks that moved most, at most 8)")
+    p.add_argument("--time", metavar="SECONDS", action="append",
+                   help="3-D snapshot at the recorded step nearest this time (comma-separated "
+                        "or repeated; default: initial and final)")
+    p.add_argument("--step", metavar="N", action="append",
+                   help="3-D snapshot at this recorded solver step (comma-separated or "
+                        "repeated)")
     p.set_defaults(func=cmd_plot)
 
     p = sub.add_parser("serve", help="start the REST API and its embedded workers")
@@ -445,9 +485,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.set_defaults(func=cmd_serve)
 
     p = sub.add_parser("worker", help="start a scale-out worker (Redis queue)",
-                       add_help=False)
-    p.add_argument("worker_args", nargs=argparse.REMAINDER,
-                   help="options of the worker (see `polydda worker --help`)")
+                       description="work PolyDDA jobs from the Redis queue; each option "
+                                   "overrides its POLYDDA_* variable")
+    worker_options(p)
     p.set_defaults(func=cmd_worker)
 
     p = sub.add_parser("submit", help="submit a scene to a running server")

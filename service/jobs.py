@@ -312,7 +312,8 @@ def run_rq(job_id: str, process: str, scene_text: str) -> str:
         raise RuntimeError("run_rq runs inside an RQ worker")
     ctx = RedisContext(current.connection, job_id, settings.progress_interval)
     now = time.time()
-    ctx.set({"status": "running", "started": now, "updated": now, "progress": 0.0})
+    ctx.set({"status": "running", "started": now, "updated": now, "progress": 0.0,
+             "worker_pid": os.getpid()})  # the work horse, on the worker's host
     outcome = execute(process, scene_text, settings.job_dir(job_id), ctx)
     ctx.set({"status": outcome.status, "message": outcome.message,
              "error_kind": outcome.error_kind, "finished": time.time(),

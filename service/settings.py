@@ -29,7 +29,9 @@ class Settings(BaseSettings):
                              description="embedded backend: jobs running at once")
     max_body_bytes: int = Field(10 * 1024 * 1024, ge=1024, description="largest request body")
     max_vertices: int = Field(50_000, ge=8, description="vertices in all blocks of a scene")
-    max_blocks: int = Field(5_000, ge=1, description="explicit blocks of a scene")
+    max_blocks: int = Field(5_000, ge=1,
+                            description="blocks of a scene: explicit ones, and those its joints "
+                                        "would cut the domain into (estimated before cutting)")
     max_duration: float = Field(3600.0, gt=0, description="largest simulated duration (s)")
     max_steps: int = Field(5_000_000, ge=1, description="largest duration / time_step")
     api_keys: Annotated[frozenset[str], NoDecode] = Field(

@@ -2,6 +2,8 @@
 
 Start any number of them on any machines that share the data directory with the API:
 `POLYDDA_REDIS_URL=redis://host:6379/0 POLYDDA_DATA_DIR=/shared/polydda polydda worker`.
+The options are declared once (:func:`add_arguments`) for both `polydda worker` and
+`python -m service.worker`.
 """
 
 from __future__ import annotations
@@ -12,38 +14,81 @@ import os
 import sys
 from collections.abc import Sequence
 
-from service.settings import Settings
+LOG_LEVELS = ("DEBUG", "INFO", "WARNING", "ERROR")
+
+
+def _positive_int(text: str) -> int:
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a whole number, got {text!r}") from None
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"must be at least 1, got {value}")
+    return value
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    """The worker's options (each overrides its POLYDDA_* variable) on parser `p`."""
+    p.add_argument("--redis-url", metavar="URL", help="Redis URL (POLYDDA_REDIS_URL)")
+    p.add_argument("--queue", help="queue name (POLYDDA_RQ_QUEUE)")
+    p.add_argument("--data-dir", metavar="DIR",
+                   help="results directory shared with the API (POLYDDA_DATA_DIR)")
+    p.add_argument("--name", help="worker name (default: RQ's)")
+    p.add_argument("--burst", action="store_true", help="stop when the queue is empty")
+    p.add_argument("--max-jobs", type=_positive_int, metavar="N",
+                   help="stop after this many jobs")
+    p.add_argument("--log-level", default="INFO", type=str.upper, choices=LOG_LEVELS,
+                   help="logging level (default INFO)")
 
 
 def build_parser() -> argparse.ArgumentParser:
-    """Arguments of `polydda worker` (each overrides its POLYDDA_* variable)."""
+    """Arguments of `python -m service.worker` (the same as `polydda worker`)."""
     p = argparse.ArgumentParser(prog="polydda worker",
                                 description="work PolyDDA jobs from the Redis queue")
-    p.add_argument("--redis-url", help="Redis URL (POLYDDA_REDIS_URL)")
-    p.add_argument("--queue", help="queue name (POLYDDA_RQ_QUEUE)")
-    p.add_argument("--data-dir", help="shared results directory (POLYDDA_DATA_DIR)")
-    p.add_argument("--name", help="worker name (default: RQ's)")
-    p.add_argument("--burst", action="store_true", help="stop when the queue is empty")
-    p.add_argument("--max-jobs", type=int, help="stop after this many jobs")
-    p.add_argument("--log-level", default="INFO", help="logging level (default INFO)")
+    add_arguments(p)
     return p
 
 
-def main(argv: Sequence[str] | None = None) -> int:
-    """Run one RQ worker until it is stopped (or the queue is empty with --burst)."""
-    args = build_parser().parse_args(argv)
+def argv_of(args: argparse.Namespace) -> list[str]:
+    """The command-line options that :func:`build_parser` parses back into `args`."""
+    argv: list[str] = []
+    for dest in ("redis_url", "queue", "data_dir", "name", "max_jobs"):
+        value = getattr(args, dest)
+        if value is not None:
+            argv += ["--" + dest.replace("_", "-"), str(value)]
+    if args.burst:
+        argv.append("--burst")
+    return [*argv, "--log-level", args.log_level]
+
+
+def run(args: argparse.Namespace) -> int:
+    """Run one RQ worker until it is stopped (or the queue is empty with --burst).
+
+    Exit code 0; 2 for a malformed Redis URL; 1 when Redis cannot be reached.
+    """
+    from service.settings import Settings
+
     overrides = {k: v for k, v in (("redis_url", args.redis_url), ("rq_queue", args.queue),
                                    ("data_dir", args.data_dir)) if v is not None}
     settings = Settings(**overrides)
-    # the job function reads its settings from the environment inside the work horse
-    os.environ.update(settings.worker_env())
-    os.environ["POLYDDA_DATA_DIR"] = str(settings.data_dir.resolve())
-    os.environ["POLYDDA_PROGRESS_INTERVAL"] = str(settings.progress_interval)
-    logging.basicConfig(level=args.log_level.upper(), stream=sys.stderr,
+    # thread counts must be in the environment before numpy loads, and the job function
+    # reads its settings from the environment inside the work horse
+    env = {**settings.worker_env(), "POLYDDA_DATA_DIR": str(settings.data_dir.resolve()),
+           "POLYDDA_PROGRESS_INTERVAL": str(settings.progress_interval)}
+    if "numpy" in sys.modules and any(os.environ.get(k) != v for k, v in env.items()):
+        # started as `polydda worker`, whose CLI module loaded numpy (and its BLAS thread
+        # pool) already: become a fresh `python -m service.worker` (same pid) with `env`
+        sys.stdout.flush()
+        sys.stderr.flush()
+        os.execve(sys.executable, [sys.executable, "-m", "service.worker", *argv_of(args)],
+                  {**os.environ, **env})
+    os.environ.update(env)
+    logging.basicConfig(level=args.log_level, stream=sys.stderr,
                         format="%(asctime)s %(levelname)s %(name)s: %(message)s")
 
     # load the engine once here; each job's work horse is a fork of this process
     from redis import Redis
+    from redis.exceptions import ConnectionError as RedisConnectionError
     from rq import Queue, Worker
 
     import engine.results  # noqa: F401
@@ -51,12 +96,26 @@ def main(argv: Sequence[str] | None = None) -> int:
     import schemas.convert  # noqa: F401
     import service.jobs  # noqa: F401
 
-    conn = Redis.from_url(settings.redis_url)
+    try:
+        conn = Redis.from_url(settings.redis_url)
+    except ValueError as exc:
+        print(f"polydda worker: bad Redis URL {settings.redis_url!r}: {exc}", file=sys.stderr)
+        return 2
+    try:
+        conn.ping()
+    except RedisConnectionError as exc:
+        print(f"polydda worker: cannot reach Redis at {settings.redis_url}: {exc}",
+              file=sys.stderr)
+        return 1
     worker = Worker([Queue(settings.rq_queue, connection=conn)], connection=conn,
                     name=args.name)
-    worker.work(burst=args.burst, max_jobs=args.max_jobs,
-                logging_level=args.log_level.upper())
+    worker.work(burst=args.burst, max_jobs=args.max_jobs, logging_level=args.log_level)
     return 0
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Entry point of `python -m service.worker`; returns the exit code."""
+    return run(build_parser().parse_args(argv))
 
 
 if __name__ == "__main__":

@@ -3,8 +3,11 @@
 from __future__ import annotations
 
 import copy
+import http.client
 import json
 import os
+import select
+import shutil
 import signal
 import socket
 import sqlite3
@@ -12,7 +15,7 @@ import subprocess
 import sys
 import time
 import warnings
-from collections.abc import Callable
+from collections.abc import Callable, Iterable
 from pathlib import Path
 from typing import Any
 
@@ -69,6 +72,25 @@ def wait_final(client: Any, job_url: str, timeout: float = 60.0) -> dict[str, An
     return wait_until(done, timeout, f"{job_url} to end", every=0.1)
 
 
+def polydda(*args: str) -> list[str]:
+    """The installed `polydda` command with `args`: what docker/Dockerfile and compose run."""
+    exe = Path(sys.executable).with_name("polydda")
+    found = str(exe) if exe.is_file() else shutil.which("polydda")
+    if found is None:
+        raise RuntimeError("the `polydda` command is not installed (pip install -e .)")
+    return [found, *args]
+
+
+def serve_command(host: str, port: int) -> list[str]:
+    """`polydda serve` as the image runs it (docker/Dockerfile CMD), on `host`:`port`."""
+    return polydda("serve", "--host", host, "--port", str(port))
+
+
+def worker_command(*options: str) -> list[str]:
+    """`polydda worker` as compose runs it, plus `options`."""
+    return polydda("worker", *options)
+
+
 def free_port() -> int:
     with socket.socket() as s:
         s.bind(("127.0.0.1", 0))
@@ -84,6 +106,57 @@ def pid_alive(pid: int) -> bool:
     return state not in ("Z", "X")
 
 
+def process_env(pid: int) -> dict[str, str]:
+    """The environment process `pid` was started (exec'd) with."""
+    raw = Path(f"/proc/{pid}/environ").read_bytes()
+    return dict(item.decode().split("=", 1) for item in raw.split(b"\0") if b"=" in item)
+
+
+def process_threads(pid: int) -> int:
+    """Threads of process `pid` now."""
+    status = Path(f"/proc/{pid}/status").read_text()
+    return int(status.split("Threads:", 1)[1].split()[0])
+
+
+def post_streamed(url: str, path: str, chunks: Iterable[bytes], length: int | None,
+                  wait_first: float = 0.0, timeout: float = 30.0,
+                  ) -> tuple[int, dict[str, str], bytes, int]:
+    """POST a JSON body piece by piece (chunked when `length` is None), stopping as soon as
+    the server answers; `(status, headers, body, bytes of the body sent)`.
+
+    For bodies too large to build in memory: only what is sent is made. `wait_first` s are
+    given to the server to answer on the headers alone, before the first piece.
+    """
+    host, port = url.removeprefix("http://").split(":")
+    conn = http.client.HTTPConnection(host, int(port), timeout=timeout)
+    try:
+        conn.putrequest("POST", path)
+        conn.putheader("Content-Type", "application/json")
+        if length is None:
+            conn.putheader("Transfer-Encoding", "chunked")
+        else:
+            conn.putheader("Content-Length", str(length))
+        conn.endheaders()
+        assert conn.sock is not None
+        sent = 0
+        for k, chunk in enumerate(chunks):
+            if select.select([conn.sock], [], [], wait_first if k == 0 else 0)[0]:
+                break  # the server answered (or closed): stop sending
+            data = chunk if length is not None else b"%x\r\n%s\r\n" % (len(chunk), chunk)
+            try:
+                conn.sock.sendall(data)
+            except (BrokenPipeError, ConnectionResetError):
+                break
+            sent += len(chunk)
+        else:
+            if length is None:
+                conn.sock.sendall(b"0\r\n\r\n")
+        resp = conn.getresponse()
+        return resp.status, {k.lower(): v for k, v in resp.getheaders()}, resp.read(), sent
+    finally:
+        conn.close()
+
+
 def job_row(data_dir: Path, job_id: str) -> dict[str, Any]:
     """The job table row of a job, read directly (worker pid, attempts)."""
     db = sqlite3.connect(data_dir / "jobs.sqlite")
@@ -96,7 +169,7 @@ def job_row(data_dir: Path, job_id: str) -> dict[str, Any]:
 
 
 class Server:
-    """`service.app.serve` in a subprocess on a free loopback port (what `polydda serve` runs)."""
+    """`polydda serve` (the image's command) in a subprocess on a free loopback port."""
 
     def __init__(self, data_dir: Path, **env: str) -> None:
         self.data_dir = data_dir
@@ -107,10 +180,10 @@ class Server:
         self.log = data_dir.parent / f"server-{self.port}.log"
 
     def start(self, timeout: float = 30.0) -> Server:
-        code = f"from service.app import serve; serve('127.0.0.1', {self.port})"
         with open(self.log, "ab") as log:
-            self.proc = subprocess.Popen([sys.executable, "-c", code], env=self.env, cwd=ROOT,
-                                         stdout=log, stderr=subprocess.STDOUT)
+            self.proc = subprocess.Popen(serve_command("127.0.0.1", self.port), env=self.env,
+                                         cwd=self.data_dir.parent, stdout=log,
+                                         stderr=subprocess.STDOUT)
 
         def up() -> bool:
             assert self.proc is not None and self.proc.poll() is None, self.log.read_text()

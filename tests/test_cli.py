@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import time
 from collections.abc import Callable
 from pathlib import Path
 
@@ -153,6 +154,49 @@ def test_usage_errors(capsys: pytest.CaptureFixture[str]) -> None:
     assert code == 2 and "scene" in err
 
 
+def test_worker_options_and_help(capsys: pytest.CaptureFixture[str]) -> None:
+    """`polydda worker` takes the options of service.worker (running one: test_service_rq)."""
+    code, out, _ = run(capsys, "worker", "--help")
+    assert code == 0 and out.startswith("usage: polydda worker")
+    for option in ("--redis-url", "--queue", "--data-dir", "--name", "--burst", "--max-jobs",
+                   "--log-level"):
+        assert option in out
+    code, _, err = run(capsys, "worker", "--redis-url", "redis://x:6379/0", "--bogus")
+    assert code == 2 and "unrecognized arguments: --bogus" in err
+    code, _, err = run(capsys, "worker", "--max-jobs", "0")
+    assert code == 2 and "--max-jobs: must be at least 1, got 0" in err
+    code, _, err = run(capsys, "worker", "--log-level", "chatty")
+    assert code == 2 and "--log-level" in err
+    from service.cli import build_parser
+    from service.worker import argv_of
+    from service.worker import build_parser as worker_parser
+
+    argv = ["worker", "--redis-url", "redis://h:6379/1", "--queue", "q", "--data-dir", "/d",
+            "--name", "w", "--burst", "--max-jobs", "3", "--log-level", "debug"]
+    args = build_parser().parse_args(argv)
+    assert (args.redis_url, args.queue, args.data_dir, args.name, args.burst, args.max_jobs,
+            args.log_level) == ("redis://h:6379/1", "q", "/d", "w", True, 3, "DEBUG")
+    again = worker_parser().parse_args(argv_of(args))  # what the worker re-executes with
+    assert {k: v for k, v in vars(args).items() if k in vars(again)} == vars(again)
+
+
+def test_joint_sets_cutting_millions_of_blocks_are_refused_at_once(
+        capsys: pytest.CaptureFixture[str], tmp_path: Path) -> None:
+    scene = {"domain": {"box": {"min": [0, 0, 0], "max": [100, 100, 100]}},
+             "joints": [{"dip": dip, "dip_direction": ddir, "point": [0, 0, 0], "spacing": 0.6}
+                        for dip, ddir in [(0, 0), (90, 0), (90, 90)]]}
+    path = write_scene(tmp_path, scene)
+    t0 = time.monotonic()
+    code, out, err = run(capsys, "validate", path)
+    assert time.monotonic() - t0 < 2
+    assert code == 2 and out == ""
+    assert err.splitlines() == ["joints: the joints would cut the domain into about 4.71 "
+                                "million blocks; the limit is 20,000 (increase the spacings)"]
+    scene["joints"][0]["spacing"] = 25.0  # 5 x 167.7 x 167.7 cells: still too many
+    code, _, err = run(capsys, "blocks", write_scene(tmp_path, scene))
+    assert code == 2 and "about 141,000 blocks" in err
+
+
 def test_run_writes_result_summary_and_vtkhdf(capsys: pytest.CaptureFixture[str],
                                               tmp_path: Path) -> None:
     """`polydda run` on the wedge (φ = 0 so it moves): summary fields, result file readable by
@@ -206,3 +250,39 @@ def test_run_of_a_bad_scene_exits_2(capsys: pytest.CaptureFixture[str], tmp_path
                        str(tmp_path / "x.h5"))
     assert code == 2 and "Traceback" not in err
     assert not (tmp_path / "x.h5").exists()
+
+
+def test_plot_chooses_blocks_and_snapshot_times(capsys: pytest.CaptureFixture[str],
+                                                tmp_path: Path) -> None:
+    """`polydda plot`: default plots; --blocks (names) for the histories; --time / --step
+    for the 3-D snapshots; unknown names, times and steps exit 2."""
+    from tests.test_results import write_run
+
+    result = tmp_path / "run.h5"
+    write_run(result, n_steps=12)  # blocks base (fixed) and cube; steps 0, 10, ... 110
+    code, out, err = run(capsys, "plot", str(result), "--out", str(tmp_path / "default"))
+    assert code == 0, err
+    assert [Path(p).name for p in out.split()] == ["histories.png", "energy.png",
+                                                   "snapshot_initial.png", "snapshot_final.png"]
+    code, out, err = run(capsys, "plot", str(result), "--out", str(tmp_path / "chosen"),
+                         "--blocks", "base,cube", "--time", "0.31", "--step", "50",
+                         "--step", "110,30")
+    assert code == 0, err
+    paths = [Path(p) for p in out.split()]
+    assert [p.name for p in paths] == ["histories.png", "energy.png", "snapshot_step30.png",
+                                       "snapshot_step50.png", "snapshot_step110.png"]
+    assert all(p.read_bytes()[:4] == b"\x89PNG" for p in paths)
+    # the default histories show the free block only; base and cube is another plot
+    assert paths[0].read_bytes() != (tmp_path / "default" / "histories.png").read_bytes()
+    # step 110 is the last one: the same picture as the default final snapshot
+    assert paths[4].read_bytes() == (tmp_path / "default" / "snapshot_final.png").read_bytes()
+
+    for args, message in [(["--blocks", "cube,rock"], "no block named 'rock' (blocks: base, cube)"),
+                          (["--time", "5"], "time 5 s is outside the recorded times (0 to 1.1 s)"),
+                          (["--step", "15"], "step 15 was not recorded"),
+                          (["--time", "soon"], "not a number")]:
+        code, out, err = run(capsys, "plot", str(result), "--out", str(tmp_path / "bad"), *args)
+        assert code == 2 and out == "" and message in err, (args, err)
+    assert not (tmp_path / "bad").exists()
+    code, _, err = run(capsys, "plot", str(tmp_path / "missing.h5"))
+    assert code == 1 and "cannot plot" in err

@@ -401,6 +401,40 @@ def test_dense_joint_sets_are_refused() -> None:
     assert_problem(scene, "joints: the joint sets make about 17,322 planes across the domain")
 
 
+def test_cut_block_estimate_before_cutting(monkeypatch: pytest.MonkeyPatch) -> None:
+    """Exact for sets normal to a box's sides, close for oblique ones; a scene over the block
+    limit is refused without cutting."""
+    from schemas.scene import Scene, estimate_cut_blocks
+
+    def count(scene: dict) -> tuple[float, int]:
+        est = estimate_cut_blocks(Scene.model_validate(scene))
+        return est, len(build_model(scene).model.blocks)
+
+    grid = {"domain": {"box": {"min": [0, 0, 0], "max": [3, 2, 2]}},
+            "joints": [{"dip": 90, "dip_direction": 90, "point": [0.5, 0, 0], "spacing": 1},
+                       {"dip": 0, "dip_direction": 0, "point": [0, 0, 1]},
+                       {"dip": 90, "dip_direction": 0, "point": [0, 1, 0]}]}
+    assert count(grid) == (16, 16)
+    grid["joints"].append({"dip": 90, "dip_direction": 270, "point": [0, 0, 0],
+                           "spacing": 1})  # parallel to the first set: the planes double
+    assert count(grid)[0] == 28
+    rock = {"domain": {"box": {"min": [0, 0, 0], "max": [10, 10, 10]}, "min_block_volume": 0},
+            "joints": [{"dip": dip, "dip_direction": ddir, "point": [5, 5, 5], "spacing": 2.5}
+                       for dip, ddir in [(80, 30), (75, 150), (20, 270)]]}
+    est, n = count(rock)
+    assert n == pytest.approx(est, rel=0.1), (est, n)
+
+    def no_cutting(*args: Any, **kwargs: Any) -> None:
+        raise AssertionError("the domain was cut")
+
+    monkeypatch.setattr("engine.cutting.cut_blocks", no_cutting)
+    for j in rock["joints"]:
+        j["spacing"] = 0.3
+    assert problems_of(rock) == [
+        "joints: the joints would cut the domain into about 38,000 blocks; the limit is "
+        "20,000 (increase the spacings)"]
+
+
 def test_scene_error_carries_structured_problems() -> None:
     with pytest.raises(SceneError) as info:
         load_scene({"materials": {"rock": {"density": -1}}, "blocks": []})

@@ -1,4 +1,8 @@
-"""REST service in-process (TestClient, embedded backend): jobs, results, errors, limits."""
+"""REST service in-process (TestClient, embedded backend): jobs, results, errors, limits.
+
+The bad-input catalogue (BAD) goes to a real `polydda serve` instead: its bodies include
+one far too large to build in memory, streamed over a socket.
+"""
 
 from __future__ import annotations
 
@@ -6,21 +10,25 @@ import json
 import os
 import signal
 import time
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from pathlib import Path
-from typing import Any
+from typing import Any, NamedTuple
 
+import httpx
 import pytest
 
 from engine.results import open_result
 from service.app import create_app
 from service.settings import Settings
 from tests.service_helpers import (
+    Server,
     TestClient,
     box,
     cube_scene,
     job_row,
     pid_alive,
+    post_streamed,
+    process_env,
     wait_final,
     wait_until,
     wedge_scene,
@@ -189,6 +197,54 @@ def _huge() -> dict:
     return s
 
 
+def _joint_bomb() -> dict:
+    """Half a kilobyte that cuts into about 4.7 million blocks: a 100 m domain and three
+    joint sets 0.6 m apart."""
+    s = cube_scene()
+    del s["blocks"]
+    s["domain"] = {"box": {"min": [0, 0, 0], "max": [100, 100, 100]}}
+    s["joints"] = [{"dip": dip, "dip_direction": ddir, "point": [0, 0, 0], "spacing": 0.6}
+                   for dip, ddir in [(0, 0), (90, 0), (90, 90)]]
+    return s
+
+
+class Streamed(NamedTuple):
+    """A body sent piece by piece, never whole in memory (chunked when `length` is None)."""
+
+    chunks: Callable[[], Iterator[bytes]]
+    length: int | None
+
+
+def _explicit_block_of(n: int, chunked: bool, per_chunk: int = 2_000) -> Streamed:
+    """A scene whose one explicit block has `n` vertices (10^7: about 380 MB of JSON)."""
+    head = b'{"name": "many vertices", "blocks": [{"name": "b", "vertices": ['
+    vertex = b"[0.123456789,0.123456789,0.123456789]"
+    tail = b'], "faces": [[0, 1, 2]]}], "analysis": {"duration": 0.01, "time_step": 0.001}}'
+    full = (vertex + b",") * per_chunk  # one 76 kB piece, sent again and again
+
+    def chunks() -> Iterator[bytes]:
+        yield head
+        left = n
+        while left > per_chunk:
+            yield full
+            left -= per_chunk
+        yield (vertex + b",") * (left - 1) + vertex
+        yield tail
+
+    size = len(head) + n * len(vertex) + (n - 1) + len(tail)
+    return Streamed(chunks, None if chunked else size)
+
+
+def test_streamed_bodies_are_what_they_claim() -> None:
+    small = _explicit_block_of(3, chunked=False, per_chunk=2)
+    text = b"".join(small.chunks())
+    assert len(text) == small.length
+    assert len(json.loads(text)["blocks"][0]["vertices"]) == 3
+    big = _explicit_block_of(10**7, chunked=False)
+    assert big.length is not None and big.length > 350e6
+    assert sum(map(len, big.chunks())) == big.length
+
+
 BAD = {
     "malformed JSON": (b'{"blocks": [', "", "not valid JSON"),
     "not an object": (b"[1, 2]", "", "JSON object"),
@@ -201,25 +257,69 @@ BAD = {
                          "materials.rock.density", "positive"),
     "friction angle 95": (_with("joint_materials", {"j": {"friction_angle": 95}}),
                           "joint_materials.j.friction_angle", "95"),
-    "huge scene": (_huge(), "blocks", "at most 500"),
+    "huge scene": (_huge(), "blocks", "at most 500 (POLYDDA_MAX_VERTICES)"),
     "too long": (cube_scene(duration=5000, time_step=0.01), "analysis.duration", "at most"),
+    "joint sets cutting 4.7 million blocks": (
+        _joint_bomb(), "joints", "about 4.71 million blocks; this service accepts at most "
+                                 "5,000 (POLYDDA_MAX_BLOCKS)"),
+    "10^7 vertices (Content-Length)": (_explicit_block_of(10**7, chunked=False), "", ""),
+    "10^7 vertices (chunked)": (_explicit_block_of(10**7, chunked=True), "", ""),
 }
+BODY_LIMIT = 64 * 1024
+
+
+@pytest.fixture(scope="module")
+def bad_input_server(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Server]:
+    """`polydda serve` with small limits, for the bad-input catalogue."""
+    with Server(tmp_path_factory.mktemp("bad") / "data", POLYDDA_MAX_VERTICES="500",
+                POLYDDA_MAX_BODY_BYTES=str(BODY_LIMIT)) as srv:
+        yield srv
+
+
+def _peak_rss(pid: int) -> int:
+    """Peak resident memory of process `pid` in bytes."""
+    status = Path(f"/proc/{pid}/status").read_text()
+    return 1024 * int(status.split("VmHWM:", 1)[1].split()[0])
 
 
 @pytest.mark.parametrize("name", BAD)
-def test_bad_input_is_a_clear_problem_and_creates_nothing(client: TestClient,
+def test_bad_input_is_a_clear_problem_and_creates_nothing(bad_input_server: Server,
                                                           name: str) -> None:
+    srv = bad_input_server
     body, loc, text = BAD[name]
-    raw = body if isinstance(body, bytes) else json.dumps(body).encode()
-    r = client.post("/jobs", content=raw, headers={"Content-Type": "application/json"})
-    assert r.status_code == 422, r.text
-    assert r.headers["content-type"] == PROBLEM
-    doc = r.json()
-    assert doc["type"].endswith("/invalid-scene") and doc["status"] == 422
-    assert any(loc in e["loc"] and text in e["msg"] for e in doc["errors"]), doc["errors"]
-    assert "Traceback" not in r.text
-    _nothing_created(client)
-    assert client.get("/processes").status_code == 200
+    assert srv.proc is not None
+    rss0 = _peak_rss(srv.proc.pid)
+    t0 = time.monotonic()
+    if isinstance(body, Streamed):
+        status, headers, raw, sent = post_streamed(srv.url, "/jobs", body.chunks(), body.length,
+                                                   wait_first=0 if body.length is None else 2)
+        doc = json.loads(raw)
+    else:
+        r = httpx.post(srv.url + "/jobs", timeout=30, headers={"Content-Type": "application/json"},
+                       content=body if isinstance(body, bytes) else json.dumps(body).encode())
+        status, headers, raw, doc = r.status_code, dict(r.headers), r.content, r.json()
+    elapsed = time.monotonic() - t0
+    assert elapsed < 3, f"{name}: answered after {elapsed:.1f} s"
+    assert headers["content-type"] == PROBLEM
+    assert b"Traceback" not in raw
+    if isinstance(body, Streamed):  # refused by size, unread: the rest was never sent
+        assert status == 413, doc
+        assert doc["type"].endswith("/body-too-large") and "65,536 bytes" in doc["detail"]
+        # with a Content-Length: answered on the headers; chunked: soon after the limit
+        assert sent == 0 if body.length is not None else sent < 16e6, f"{sent:,} bytes sent"
+        grew = _peak_rss(srv.proc.pid) - rss0
+        print(f"\n{name}: 413 after {elapsed:.2f} s, {sent:,} of {body.length or 'about 380e6'}"
+              f" bytes sent, server peak memory +{grew / 1e6:.1f} MB")
+        assert grew < 50e6, f"the server's peak memory grew by {grew / 1e6:.0f} MB"
+    else:
+        assert status == 422, doc
+        assert doc["type"].endswith("/invalid-scene") and doc["status"] == 422
+        assert any(loc in e["loc"] and text in e["msg"] for e in doc["errors"]), doc["errors"]
+    with httpx.Client(base_url=srv.url, timeout=10) as c:  # still answering; nothing made
+        assert c.get("/processes").status_code == 200
+        assert c.get("/jobs").json()["numberMatched"] == 0
+    jobs_dir = srv.data_dir / "jobs"
+    assert not jobs_dir.exists() or not any(jobs_dir.iterdir())
 
 
 def test_body_over_the_size_limit_is_413(client: TestClient) -> None:
@@ -277,12 +377,14 @@ def test_quota_429_and_cancelling_accepted_jobs(tmp_path: Path) -> None:
 
 
 def test_cancel_stops_the_process_and_keeps_partial_results(tmp_path: Path) -> None:
-    with make_client(tmp_path) as c:
+    with make_client(tmp_path, worker_threads=2) as c:
         url = c.post("/jobs", json=cube_scene(duration=60, record_interval=1)).headers[
             "Location"]
         wait_until(lambda: (c.get(url).json()["step"] or 0) > 20, 60, "steps")
         pid = job_row(tmp_path / "data", url.rsplit("/", 1)[1])["worker_pid"]
         assert pid_alive(pid)
+        # started with the configured thread count (1 unless configured: test_service_server)
+        assert process_env(pid)["OMP_NUM_THREADS"] == "2"
         t0 = time.monotonic()
         r = c.delete(url)
         assert r.status_code == 200 and r.json()["status"] == "dismissed", r.text

@@ -5,7 +5,6 @@ from __future__ import annotations
 import os
 import shutil
 import subprocess
-import sys
 import time
 from collections.abc import Iterator
 from pathlib import Path
@@ -15,12 +14,15 @@ import pytest
 
 from engine.results import open_result
 from tests.service_helpers import (
-    ROOT,
     Server,
     cube_scene,
     free_port,
+    job_row,
+    pid_alive,
+    process_env,
     wait_final,
     wait_until,
+    worker_command,
 )
 
 REDIS = shutil.which("redis-server")
@@ -53,11 +55,11 @@ def redis_url(tmp_path: Path) -> Iterator[str]:
 
 
 def start_worker(data: Path, redis_url: str, name: str, log: Path) -> subprocess.Popen[bytes]:
+    """`polydda worker` configured as docker/compose.yaml does it: by POLYDDA_* variables."""
     env = {**os.environ, "POLYDDA_DATA_DIR": str(data), "POLYDDA_REDIS_URL": redis_url}
-    code = f"from service.worker import main; main(['--name', '{name}'])"
     with open(log, "ab") as f:
-        return subprocess.Popen([sys.executable, "-c", code], env=env, cwd=ROOT, stdout=f,
-                                stderr=subprocess.STDOUT)
+        return subprocess.Popen(worker_command("--name", name), env=env, cwd=log.parent,
+                                stdout=f, stderr=subprocess.STDOUT)
 
 
 def test_jobs_run_on_rq_workers(tmp_path: Path, redis_url: str) -> None:
@@ -82,14 +84,23 @@ def test_jobs_run_on_rq_workers(tmp_path: Path, redis_url: str) -> None:
                 assert r.status == "completed"
             blocks = c.post("/jobs", params={"process": "block-cutting"}, json=cube_scene())
             assert wait_final(c, blocks.headers["Location"], 60)["status"] == "successful"
-            # cancel the long job on its worker
+            # cancel the long job on its worker: the process running it (RQ's work horse)
+            # stops, the workers go on
             wait_until(lambda: (c.get(long_url).json()["step"] or 0) > 5, 60, "the long job")
+            pid = wait_until(lambda: job_row(data, long_url.rsplit("/", 1)[1])["worker_pid"],
+                             10, "the job's process id")
+            assert pid_alive(pid) and pid not in [w.pid for w in workers]
+            assert process_env(pid)["OMP_NUM_THREADS"] == "1"
             t0 = time.monotonic()
             c.delete(long_url)
+            wait_until(lambda: not pid_alive(pid), 5, "the job's process to stop")
+            gone = time.monotonic() - t0
             doc = wait_final(c, long_url, 10)
-            print(f"\nrq cancel: dismissed {time.monotonic() - t0:.2f} s after DELETE")
-            assert doc["status"] == "dismissed"
+            print(f"\nrq cancel: job process gone {gone:.2f} s, job dismissed "
+                  f"{time.monotonic() - t0:.2f} s after DELETE")
+            assert doc["status"] == "dismissed" and gone < 5
             assert c.get(long_url + "/results").json()["partial"] is True
+            assert all(w.poll() is None for w in workers)
     finally:
         for w in workers:
             w.terminate()
@@ -99,6 +110,29 @@ def test_jobs_run_on_rq_workers(tmp_path: Path, redis_url: str) -> None:
             except subprocess.TimeoutExpired:
                 w.kill()
                 w.wait(10)
+
+
+def test_burst_worker_with_options(tmp_path: Path, redis_url: str) -> None:
+    """`polydda worker --redis-url ... --data-dir ... --burst`: works the queue, then exits."""
+    data = tmp_path / "shared"
+    with Server(data, POLYDDA_BACKEND="rq", POLYDDA_REDIS_URL=redis_url) as srv, \
+            httpx.Client(base_url=srv.url, timeout=30) as c:
+        url = c.post("/jobs", params={"process": "block-cutting"}, json=cube_scene()).headers[
+            "Location"]
+        assert c.get(url).json()["status"] == "accepted"  # no worker yet
+        env = {k: v for k, v in os.environ.items() if not k.startswith("POLYDDA_")}
+        done = subprocess.run(worker_command("--redis-url", redis_url, "--data-dir", str(data),
+                                             "--burst", "--name", f"burst-{os.getpid()}"),
+                              env=env, cwd=tmp_path, capture_output=True, text=True,
+                              timeout=120)
+        assert done.returncode == 0, done.stderr
+        assert "done, quitting" in done.stderr
+        doc = wait_final(c, url, 10)
+        assert doc["status"] == "successful", doc
+        assert c.get(url + "/results").json()["blocks"]["count"] == 2
+    bad = subprocess.run(worker_command("--redis-url", "redis://127.0.0.1:1/0", "--burst"),
+                         cwd=tmp_path, capture_output=True, text=True, timeout=60)
+    assert bad.returncode == 1 and "cannot reach Redis at redis://127.0.0.1:1/0" in bad.stderr
 
 
 def test_job_committed_but_not_yet_enqueued_is_left_alone(tmp_path: Path, redis_url: str) -> None:

@@ -1,23 +1,32 @@
-"""REST service as deployed: a real uvicorn process (what `polydda serve` runs) on loopback."""
+"""REST service as deployed: `polydda serve` (the docker image's command) on loopback."""
 
 from __future__ import annotations
 
 import json
 import statistics
+import subprocess
 import threading
 import time
 from pathlib import Path
 
 import httpx
+import numpy as np
 import pytest
 
 from engine.results import open_result
 from service import client as svc_client
+from service.settings import Settings
+from service.worker import build_parser as worker_parser
 from tests.service_helpers import (
+    ROOT,
     Server,
     cube_scene,
     job_row,
     pid_alive,
+    polydda,
+    process_env,
+    process_threads,
+    serve_command,
     wait_final,
     wait_until,
     wedge_scene,
@@ -27,6 +36,10 @@ from tests.service_helpers import (
 def test_wedge_over_http_with_events_and_download(tmp_path: Path) -> None:
     scene = tmp_path / "wedge.json"
     scene.write_text(json.dumps(wedge_scene(0.3)))
+    cli_h5 = tmp_path / "cli.h5"
+    # the same scene through `polydda run`, meanwhile
+    cli = subprocess.Popen(polydda("run", str(scene), "--out", str(cli_h5), "--quiet"),
+                           cwd=tmp_path, stdout=subprocess.PIPE, stderr=subprocess.STDOUT)
     seen: list[dict] = []
     with Server(tmp_path / "data") as srv:
         doc = svc_client.submit(srv.url, scene, wait=True, on_status=seen.append)
@@ -43,14 +56,48 @@ def test_wedge_over_http_with_events_and_download(tmp_path: Path) -> None:
             assert wedge["displacement"][1] < 0 and wedge["displacement"][2] < 0
             out = tmp_path / "wedge.h5"
             with c.stream("GET", job_url + "/results/result.h5") as r:
-                assert r.status_code == 200
+                assert r.status_code == 200 and r.headers["accept-ranges"] == "bytes"
                 with open(out, "wb") as f:
                     for chunk in r.iter_bytes():
                         f.write(chunk)
-        with open_result(out) as r5:
-            assert r5.status == "completed" and r5.n_steps > 1
-            assert r5.block_names == ["B1", "B2"]
-            assert json.loads(r5.scene_json)["analysis"]["duration"] == 0.3
+            whole = out.read_bytes()
+            assert int(r.headers["content-length"]) == len(whole)
+            for ask, lo, hi in [("bytes=100-1123", 100, 1123),
+                                ("bytes=-500", len(whole) - 500, len(whole) - 1),
+                                (f"bytes={len(whole) - 10}-", len(whole) - 10, len(whole) - 1)]:
+                part = c.get(job_url + "/results/result.h5", headers={"Range": ask})
+                assert part.status_code == 206, (ask, part.status_code)
+                assert part.headers["content-range"] == f"bytes {lo}-{hi}/{len(whole)}", ask
+                assert part.content == whole[lo:hi + 1], ask
+    with open_result(out) as r5:
+        assert r5.status == "completed" and r5.n_steps > 1
+        assert r5.block_names == ["B1", "B2"]
+        assert json.loads(r5.scene_json)["analysis"]["duration"] == 0.3
+        http_run = _final_state(r5)
+    cli_log = cli.communicate(timeout=120)[0].decode()
+    assert cli.returncode == 0, cli_log
+    with open_result(cli_h5) as r5:
+        cli_run = _final_state(r5)
+    # the engine is deterministic: the service computes what the command line computes
+    assert http_run["steps"].tolist() == cli_run["steps"].tolist()
+    for key in ("times", "centroids", "rotations", "vertices"):
+        np.testing.assert_allclose(http_run[key], cli_run[key], rtol=0, atol=1e-9,
+                                   err_msg=key)
+    moved = np.abs(http_run["centroids"][1] - http_run["initial"][1]).max()
+    assert moved > 1e-6  # far more than the tolerance: the comparison is not trivial
+
+
+def _final_state(r: object) -> dict[str, np.ndarray]:
+    """Recorded steps and times, and the blocks at the last step: centroids, rotations,
+    vertices (and the initial centroids)."""
+    from engine.results import Result
+
+    assert isinstance(r, Result)
+    return {"steps": r.steps, "times": r.times, "centroids": r.centroids(-1),
+            "initial": r.centroids(0),
+            "rotations": np.array([r.block_history(b)["rotation"][-1]
+                                   for b in range(r.n_blocks)]),
+            "vertices": r.all_vertices(-1)}
 
 
 def test_cancel_over_http_stops_the_process(tmp_path: Path) -> None:
@@ -61,6 +108,13 @@ def test_cancel_over_http_stops_the_process(tmp_path: Path) -> None:
         url = r.headers["Location"]
         wait_until(lambda: (c.get(url).json()["step"] or 0) >= 10, 60, "the run to go")
         pid = job_row(srv.data_dir, url.rsplit("/", 1)[1])["worker_pid"]
+        # the job process started with one OMP/BLAS thread (POLYDDA_WORKER_THREADS) and
+        # runs single-threaded, whatever the API process had loaded
+        env = process_env(pid)
+        assert {k: env.get(k) for k in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS",
+                                        "MKL_NUM_THREADS")} == dict.fromkeys(
+            ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"), "1")
+        assert process_threads(pid) == 1
         t0 = time.monotonic()
         doc = c.delete(url).json()
         wait_until(lambda: not pid_alive(pid), 5, "the job process to stop")
@@ -79,7 +133,9 @@ def test_killed_server_requeues_its_running_job(tmp_path: Path) -> None:
     data = tmp_path / "data"
     srv = Server(data).start()
     try:
-        r = httpx.post(srv.url + "/jobs", json=cube_scene(duration=0.4), timeout=30)
+        # long enough (1000 steps) that the orphaned job process cannot finish the run in
+        # the fraction of a second it takes to notice that the server is gone
+        r = httpx.post(srv.url + "/jobs", json=cube_scene(duration=1.0), timeout=30)
         url = srv.url + r.headers["Location"]
         wait_until(lambda: (httpx.get(url).json()["step"] or 0) >= 5, 60, "the job to run")
         job_id = url.rsplit("/", 1)[1]
@@ -96,7 +152,7 @@ def test_killed_server_requeues_its_running_job(tmp_path: Path) -> None:
         assert doc["status"] == "successful", doc
         assert job_row(data, job_id)["attempts"] == 2
         res = httpx.get(url + "/results").json()
-        assert res["summary"]["simulated_time"] == pytest.approx(0.4)
+        assert res["summary"]["simulated_time"] == pytest.approx(1.0)
 
 
 @pytest.mark.parametrize("n_jobs", [
@@ -136,3 +192,33 @@ def test_many_jobs_finish_and_status_stays_fast(tmp_path: Path, n_jobs: int) -> 
               f"p50 {1e3 * statistics.median(latencies):.1f} ms, p95 {1e3 * p95:.1f} ms, "
               f"max {1e3 * max(latencies):.1f} ms")
         assert p95 < 0.1
+
+
+def test_docker_files_run_the_commands_these_tests_run() -> None:
+    """The image's API command is `serve_command` (all server tests run it) with the
+    container's address; compose's worker command is what test_service_rq runs."""
+    yaml = pytest.importorskip("yaml")
+    dockerfile = (ROOT / "docker" / "Dockerfile").read_text()
+    lines = [ln.strip() for ln in dockerfile.splitlines()]
+    cmd = json.loads(next(ln for ln in lines if ln.startswith("CMD ["))[4:])
+    assert cmd == ["polydda", *serve_command("0.0.0.0", 8000)[1:]]
+    port = cmd[cmd.index("--port") + 1]
+    assert f"EXPOSE {port}" in lines
+    assert f"http://127.0.0.1:{port}/health" in dockerfile
+    assert "POLYDDA_DATA_DIR=/data" in dockerfile and 'VOLUME ["/data"]' in lines
+
+    compose = yaml.safe_load((ROOT / "docker" / "compose.yaml").read_text())
+    services = compose["services"]
+    assert services["api"]["command"] == cmd
+    assert services["api"]["ports"] == [f"{port}:{port}"]
+    worker = services["worker"]["command"]
+    assert worker[:2] == ["polydda", "worker"]
+    worker_parser().parse_args(worker[2:])  # options `polydda worker` accepts
+    settings = set(Settings.model_fields)
+    for name in ("api", "worker"):
+        variables = services[name]["environment"]
+        assert {k.removeprefix("POLYDDA_").lower() for k in variables} <= settings, variables
+        assert variables["POLYDDA_BACKEND"] == "rq"
+        assert variables["POLYDDA_REDIS_URL"].startswith("redis://redis:")
+        assert variables["POLYDDA_DATA_DIR"] == "/data"
+        assert services[name]["volumes"] == ["results:/data"]

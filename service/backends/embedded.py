@@ -1,19 +1,22 @@
-"""Embedded backend: each job in its own process (spawn) on the API host, up to max_workers.
+"""Embedded backend: each job in its own process on the API host, up to max_workers.
 
 The supervisor thread claims accepted jobs (oldest first), starts their processes, reaps
 them, and kills a cancelled one that has not stopped within `cancel_grace`. A job process
-writes its progress and outcome to the job table itself and stops by itself when the API
-process that started it is gone; the next API process re-queues what was left running.
+is a fresh interpreter (`python -m service.backends.embedded ...`) started with the
+worker environment (`Settings.worker_env`: one OMP/BLAS thread) already set, so numpy
+never loads with more threads, whatever the API process imported. It writes its progress
+and outcome to the job table itself and stops by itself when the API process that started
+it is gone; the next API process re-queues what was left running.
 """
 
 from __future__ import annotations
 
 import logging
-import multiprocessing
 import os
 import signal
+import subprocess
+import sys
 import time
-from multiprocessing.process import BaseProcess
 from pathlib import Path
 from typing import Any
 
@@ -25,6 +28,8 @@ log = logging.getLogger(__name__)
 
 #: seconds between SIGTERM and SIGKILL of a job process that was told to stop
 KILL_AFTER = 2.0
+#: the module a job process runs (`python -m JOB_MODULE ...`); also how a stale one is known
+JOB_MODULE = "service.backends.embedded"
 
 
 class SqliteContext(TaskContext):
@@ -46,10 +51,9 @@ class SqliteContext(TaskContext):
         return job is None or job.status != RUNNING or job.cancel_requested is not None
 
 
-def child_main(db_path: str, job_id: str, process: str, job_dir: str, env: dict[str, str],
-               nice: int, interval: float, parent_pid: int) -> None:
-    """Entry point of a job process: set threads and niceness, run, record the outcome."""
-    os.environ.update(env)  # before numpy is imported by the job function
+def child_main(db_path: str, job_id: str, process: str, job_dir: str, nice: int,
+               interval: float, parent_pid: int) -> None:
+    """Body of a job process (its environment set by the parent): run, record the outcome."""
     if nice:
         os.nice(nice)
     from service.jobs import execute
@@ -61,6 +65,20 @@ def child_main(db_path: str, job_id: str, process: str, job_dir: str, env: dict[
         return
     store.update(job_id, only_if=[RUNNING], status=outcome.status, message=outcome.message,
                  error_kind=outcome.error_kind, finished=time.time())
+
+
+def job_command(db_path: Path, job_id: str, process: str, job_dir: Path, nice: int,
+                interval: float, parent_pid: int) -> list[str]:
+    """The command line of a job process (read back by :func:`main`)."""
+    return [sys.executable, "-m", JOB_MODULE, str(db_path), job_id, process, str(job_dir),
+            str(nice), repr(interval), str(parent_pid)]
+
+
+def main(argv: list[str]) -> int:
+    """Entry point of a job process: `python -m service.backends.embedded` + job_command."""
+    db_path, job_id, process, job_dir, nice, interval, parent_pid = argv
+    child_main(db_path, job_id, process, job_dir, int(nice), float(interval), int(parent_pid))
+    return 0
 
 
 def _exit_text(code: int | None) -> str:
@@ -75,12 +93,12 @@ def _exit_text(code: int | None) -> str:
 
 
 def _is_job_process(pid: int) -> bool:
-    """True if `pid` is alive and looks like a multiprocessing child (a stale job process)."""
+    """True if `pid` is alive and is a job process (a stale one of an earlier API process)."""
     try:
         cmdline = Path(f"/proc/{pid}/cmdline").read_bytes()
     except OSError:
         return False
-    return b"multiprocessing" in cmdline and b"spawn_main" in cmdline
+    return JOB_MODULE.encode() in cmdline.split(b"\0")
 
 
 class EmbeddedBackend(Backend):
@@ -88,8 +106,7 @@ class EmbeddedBackend(Backend):
 
     def __init__(self, *args: Any, **kwargs: Any) -> None:
         super().__init__(*args, **kwargs)
-        self.mp = multiprocessing.get_context("spawn")
-        self.procs: dict[str, BaseProcess] = {}
+        self.procs: dict[str, subprocess.Popen[bytes]] = {}
         self.terminated: dict[str, float] = {}
 
     def recover(self) -> None:
@@ -120,12 +137,13 @@ class EmbeddedBackend(Backend):
 
     def _spawn(self, job: JobRecord) -> None:
         s = self.settings
-        args = (str(s.db_path), job.id, job.process, str(s.job_dir(job.id)), s.worker_env(),
-                s.worker_nice, s.progress_interval, os.getpid())
+        cmd = job_command(s.db_path.resolve(), job.id, job.process, s.job_dir(job.id).resolve(),
+                          s.worker_nice, s.progress_interval, os.getpid())
         try:
-            proc = self.mp.Process(target=child_main, args=args, name=f"polydda-job-{job.id}",
-                                   daemon=True)
-            proc.start()
+            # its own session: a Ctrl-C at the API's terminal reaches the API only, whose
+            # stop() then ends the job processes and re-queues their jobs
+            proc = subprocess.Popen(cmd, env={**os.environ, **s.worker_env()},
+                                    stdin=subprocess.DEVNULL, start_new_session=True)
         except Exception as exc:
             log.exception("cannot start a process for job %s", job.id)
             self.store.update(job.id, only_if=[RUNNING], status=FAILED, finished=time.time(),
@@ -137,9 +155,8 @@ class EmbeddedBackend(Backend):
 
     def _reap(self) -> None:
         for job_id, proc in list(self.procs.items()):
-            if proc.is_alive():
+            if proc.poll() is None:
                 continue
-            proc.join()
             del self.procs[job_id]
             self.terminated.pop(job_id, None)
             job = self.store.get(job_id)
@@ -154,7 +171,7 @@ class EmbeddedBackend(Backend):
                 self.store.update(
                     job_id, only_if=[RUNNING], status=FAILED, finished=now, error_kind="system",
                     message=f"system error: the job process ended unexpectedly "
-                            f"({_exit_text(proc.exitcode)}); resubmit the job")
+                            f"({_exit_text(proc.returncode)}); resubmit the job")
 
     def _enforce_cancel(self) -> None:
         if not self.procs:
@@ -162,7 +179,7 @@ class EmbeddedBackend(Backend):
         now = time.time()
         for job_id, proc in self.procs.items():
             if job_id in self.terminated:
-                if now - self.terminated[job_id] > KILL_AFTER and proc.is_alive():
+                if now - self.terminated[job_id] > KILL_AFTER and proc.poll() is None:
                     proc.kill()
                 continue
             job = self.store.get(job_id)
@@ -181,10 +198,14 @@ class EmbeddedBackend(Backend):
             proc.terminate()
         deadline = time.monotonic() + 5.0
         for job_id, proc in self.procs.items():
-            proc.join(max(0.0, deadline - time.monotonic()))
-            if proc.is_alive():
+            try:
+                proc.wait(max(0.0, deadline - time.monotonic()))
+            except subprocess.TimeoutExpired:
                 proc.kill()
-                proc.join(2.0)
+                try:
+                    proc.wait(2.0)
+                except subprocess.TimeoutExpired:
+                    log.error("job process %s of job %s does not die", proc.pid, job_id)
             job = self.store.get(job_id)
             if job is not None and job.status == RUNNING:
                 if job.cancel_requested is not None:
@@ -196,3 +217,7 @@ class EmbeddedBackend(Backend):
                                       attempts=max(0, job.attempts - 1), worker_pid=None,
                                       message="re-queued: the service was stopped")
         self.procs.clear()
+
+
+if __name__ == "__main__":
+    sys.exit(main(sys.argv[1:]))

@@ -23,7 +23,7 @@ log = logging.getLogger(__name__)
 RQ_FUNCTION = "service.jobs.run_rq"
 #: fields copied from a worker's Redis hash into the job table
 _SYNCED = ("status", "started", "finished", "updated", "progress", "step", "simulated_time",
-           "duration", "message", "error_kind")
+           "duration", "message", "error_kind", "worker_pid")
 
 
 class QueueUnavailable(RuntimeError):
