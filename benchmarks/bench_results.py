@@ -1,16 +1,33 @@
-"""Benchmark: HDF5 result writing for 1,000 blocks x 1,000 recorded steps, ~6 contacts/block.
+"""Benchmark: the cost of writing the HDF5 result file, on made-up frames and on real runs.
 
-Run as `python benchmarks/bench_results.py [--quick] [--blocks N] [--steps K] [--variants]`
-(quick: 100 steps). Prints file size, write time, cost per step and bytes per step; with
-`--variants` also without compression and without contacts, for comparison.
+Run as `python -m benchmarks.bench_results [--only synthetic pile small] [--quick]
+[--repeat R] [--pile-steps N] [--blocks N] [--steps K] [--variants]`:
+
+- `synthetic`: 1,000 blocks x 1,000 recorded steps, ~6 contacts per block, made-up frames
+  written back to back (quick: 100 steps): file size, write time, cost per step. With
+  `--variants` also without compression, gzip-1, without contacts, flush every 10.
+- `pile`: the shared 1,000-block pile (`benchmarks.pile.pile_model`), `--pile-steps` steps
+  (default 100) recording every step, then 3x as many steps recording every 10th: the
+  run's time per step without a recorder and with the writer, the engine's `output` phase
+  per record (frame + writer) against a step, and the writer's share of the run's wall
+  time (with the end of the file) and CPU time.
+- `small`: the wedge example at its default record interval (10): the share of `output`
+  in the run's wall time, per record.
+
+Each measurement is repeated (`--repeat`, default 3) and the minimum kept: the machine may
+be shared. The writer compresses large steps on a second thread while the run goes on, so
+the pile also reports the process CPU time the writing adds.
 """
 
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import tempfile
 import time
+from collections.abc import Callable
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 from scipy.spatial.transform import Rotation
@@ -20,10 +37,12 @@ from engine.frame import Frame
 from engine.geometry import Polyhedron
 from engine.model import Block, Model
 from engine.results import ResultWriter, open_result
+from engine.simulation import run as run_model
 
 CUBE_FACES = [[0, 3, 2, 1], [4, 5, 6, 7], [0, 1, 5, 4], [1, 2, 6, 5], [2, 3, 7, 6], [3, 0, 4, 7]]
 UNIT = np.array([[0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0],
                  [0, 0, 1], [1, 0, 1], [1, 1, 1], [0, 1, 1]], float)
+EXAMPLES = Path(__file__).resolve().parents[1] / "examples"
 
 
 def grid_model(n_blocks: int) -> Model:
@@ -124,33 +143,161 @@ def run(n_blocks: int, n_steps: int, out_dir: Path, **writer_kw: object) -> dict
             "bytes_per_step": size / n_steps, "read_s": t_read}
 
 
-def main() -> None:
-    """Parse arguments, run the benchmark (and variants), print a table."""
-    ap = argparse.ArgumentParser(description=__doc__)
-    ap.add_argument("--quick", action="store_true", help="100 steps instead of 1,000")
-    ap.add_argument("--blocks", type=int, default=1000)
-    ap.add_argument("--steps", type=int, default=None)
-    ap.add_argument("--variants", action="store_true",
-                    help="also without compression, without contacts, flush every 10")
-    ap.add_argument("--dir", type=Path, default=None, help="where to write (default: tmp)")
-    args = ap.parse_args()
-    steps = args.steps or (100 if args.quick else 1000)
+# --------------------------------------------------------------------------- real runs
+
+
+class TimedWriter:
+    """A :class:`ResultWriter` whose calls are timed (s): begin, record, end."""
+
+    def __init__(self, writer: ResultWriter) -> None:
+        self.writer = writer
+        self.seconds = {"begin": 0.0, "record": 0.0, "end": 0.0}
+
+    def _timed(self, name: str, fn: Callable[..., None], *args: Any, **kw: Any) -> None:
+        t0 = time.perf_counter()
+        fn(*args, **kw)
+        self.seconds[name] += time.perf_counter() - t0
+
+    def begin(self, model: Model, scene_json: str | None = None) -> None:
+        self._timed("begin", self.writer.begin, model, scene_json)
+
+    def record(self, frame: Frame) -> None:
+        self._timed("record", self.writer.record, frame)
+
+    def end(self, status: str, message: str = "", summary: dict[str, Any] | None = None) -> None:
+        self._timed("end", self.writer.end, status, message, summary)
+
+
+def measure_run(model: Model, out_dir: Path | None) -> dict[str, float]:
+    """One run of `model`, with the writer into `out_dir` (None: no recorder)."""
+    timed = None
+    path = None
+    if out_dir is not None:
+        path = out_dir / f"run_{time.monotonic_ns()}.h5"
+        timed = TimedWriter(ResultWriter(path))
+    cpu0, wall0 = time.process_time(), time.perf_counter()
+    res = run_model(model, recorder=timed)
+    wall, cpu = time.perf_counter() - wall0, time.process_time() - cpu0  # with end()
+    out: dict[str, float] = {"wall_s": wall, "cpu_s": cpu, "steps": res.steps,
+                             "output_s": res.summary["timings"].get("output", 0.0)}
+    if timed is not None and path is not None:
+        n = timed.writer.n_recorded
+        out.update(records=n, size_mb=path.stat().st_size / 1e6,
+                   writer_s=sum(timed.seconds.values()), **{
+                       f"{k}_s": v for k, v in timed.seconds.items()})
+        path.unlink()
+    return out
+
+
+def best(rows: list[dict[str, float]]) -> dict[str, float]:
+    """Minimum of every timing over repeats (the other numbers from the first)."""
+    out = dict(rows[0])
+    for key in out:
+        if key.endswith("_s"):
+            out[key] = min(r[key] for r in rows)
+    return out
+
+
+def bench_pile(steps: int, interval: int, repeat: int, out_dir: Path) -> None:
+    """The 1,000-block pile recording every `interval` steps: write time per record against
+    a step, and what the writer adds to the run (wall time with its end, CPU time)."""
+    from benchmarks.pile import pile_model
+
+    def model() -> Model:
+        return pile_model(1000, duration=steps * 1e-3, record_interval=interval)
+
+    measure_run(pile_model(1000, duration=2e-3, record_interval=1), out_dir)  # warm-up
+    bare = best([measure_run(model(), None) for _ in range(repeat)])
+    rec = best([measure_run(model(), out_dir) for _ in range(repeat)])
+    n, k = rec["steps"], rec["records"]
+    step_s = bare["wall_s"] / bare["steps"]
+    print(f"\npile_1000, {n:.0f} steps, record_interval {interval} ({k:.0f} records), "
+          f"{rec['size_mb']:.1f} MB ({1e3 * rec['size_mb'] / k:.0f} kB/record); "
+          f"minima of {repeat}")
+    print(f"  run without a recorder: {1e3 * step_s:.1f} ms/step wall, "
+          f"{1e3 * bare['cpu_s'] / bare['steps']:.1f} ms/step CPU")
+    print(f"  run with the writer:    {1e3 * rec['wall_s'] / n:.1f} ms/step wall, "
+          f"{1e3 * rec['cpu_s'] / n:.1f} ms/step CPU (end of the file included)")
+    print(f"  output phase (frame + record) {1e3 * rec['output_s'] / k:.2f} ms/record = "
+          f"{rec['output_s'] / k / step_s:.2f} x a step = "
+          f"{100 * rec['output_s'] / rec['wall_s']:.1f} % of the run's wall time")
+    print(f"  writer calls: begin {1e3 * rec['begin_s']:.0f} ms, record "
+          f"{1e3 * rec['record_s'] / k:.2f} ms/record, end {1e3 * rec['end_s']:.0f} ms "
+          f"(waits for the last batches); in all "
+          f"{100 * rec['writer_s'] / rec['wall_s']:.1f} % of the wall time")
+    print(f"  the writer's share of the run: wall {100 * (1 - bare['wall_s'] / rec['wall_s']):.1f}"
+          f" % (extra {100 * (rec['wall_s'] / bare['wall_s'] - 1):+.1f} %), CPU "
+          f"{100 * (1 - bare['cpu_s'] / rec['cpu_s']):.1f} % (compression on a second thread)")
+
+
+def bench_small(repeat: int, out_dir: Path) -> None:
+    """The wedge example at its default record interval: share of `output` in the wall time."""
+    from schemas.convert import build_model
+
+    def model() -> Model:
+        return build_model(EXAMPLES / "wedge.json").model
+
+    m = model()
+    measure_run(dataclasses.replace(m, controls=dataclasses.replace(m.controls, duration=0.05)),
+                out_dir)  # warm-up
+    bare = best([measure_run(model(), None) for _ in range(repeat)])
+    rec = best([measure_run(model(), out_dir) for _ in range(repeat)])
+    k = rec["records"]
+    print(f"\nwedge example, {rec['steps']:.0f} steps, record_interval "
+          f"{m.controls.record_interval} ({k:.0f} records), {1e3 * rec['size_mb']:.0f} kB; "
+          f"minima of {repeat}")
+    print(f"  run: {rec['wall_s']:.2f} s wall with the writer, {bare['wall_s']:.2f} s without")
+    print(f"  output phase (frame + record) {1e3 * rec['output_s'] / k:.2f} ms/record = "
+          f"{100 * rec['output_s'] / rec['wall_s']:.1f} % of the run's wall time; writer calls "
+          f"{1e3 * rec['writer_s']:.0f} ms in all "
+          f"({100 * rec['writer_s'] / rec['wall_s']:.1f} %, begin and end included)")
+
+
+def bench_synthetic(blocks: int, steps: int, variants: bool, out_dir: Path) -> None:
+    """Made-up frames of `blocks` blocks written back to back: size and write time."""
     configs: list[tuple[str, dict[str, object]]] = [("gzip-4 + contacts (default)", {})]
-    if args.variants:
+    if variants:
         configs += [("no compression", {"compression": None}),
                     ("gzip-1", {"compression_level": 1}),
                     ("gzip-4, no contacts", {"record_contacts": False}),
                     ("gzip-4, flush every 10", {"flush_every": 10})]
+    print(f"\nsynthetic: {blocks} blocks x {steps} recorded steps, "
+          f"{6 * blocks} contacts per step, written back to back")
+    print(f"{'variant':30s} {'size MB':>9s} {'write s':>8s} {'ms/step':>8s} "
+          f"{'worst ms':>9s} {'kB/step':>8s} {'read s':>7s}")
+    for label, kw in configs:
+        r = run(blocks, steps, out_dir, **kw)
+        total = r["begin_s"] + r["record_s"] + r["end_s"]
+        print(f"{label:30s} {r['size_mb']:9.1f} {total:8.2f} {1e3 * total / steps:8.2f} "
+              f"{r['worst_ms']:9.2f} {r['bytes_per_step'] / 1e3:8.1f} {r['read_s']:7.2f}")
+
+
+def main(argv: list[str] | None = None) -> None:
+    """Parse arguments, run the chosen sections, print their numbers."""
+    ap = argparse.ArgumentParser(description=__doc__,
+                                 formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--only", nargs="+", choices=("synthetic", "pile", "small"),
+                    default=["small", "pile", "synthetic"])
+    ap.add_argument("--quick", action="store_true", help="synthetic: 100 steps, not 1,000")
+    ap.add_argument("--repeat", type=int, default=3, help="runs per measurement (minimum)")
+    ap.add_argument("--pile-steps", type=int, default=100)
+    ap.add_argument("--blocks", type=int, default=1000)
+    ap.add_argument("--steps", type=int, default=None)
+    ap.add_argument("--variants", action="store_true",
+                    help="synthetic: also without compression, gzip-1, without contacts, "
+                         "flush every 10")
+    ap.add_argument("--dir", type=Path, default=None, help="where to write (default: tmp)")
+    args = ap.parse_args(argv)
     with tempfile.TemporaryDirectory(dir=args.dir) as tmp:
-        print(f"{args.blocks} blocks x {steps} recorded steps, "
-              f"{6 * args.blocks} contacts per step")
-        print(f"{'variant':30s} {'size MB':>9s} {'write s':>8s} {'ms/step':>8s} "
-              f"{'worst ms':>9s} {'kB/step':>8s} {'read s':>7s}")
-        for label, kw in configs:
-            r = run(args.blocks, steps, Path(tmp), **kw)
-            total = r["begin_s"] + r["record_s"] + r["end_s"]
-            print(f"{label:30s} {r['size_mb']:9.1f} {total:8.2f} {r['per_step_ms']:8.2f} "
-                  f"{r['worst_ms']:9.2f} {r['bytes_per_step'] / 1e3:8.1f} {r['read_s']:7.2f}")
+        out = Path(tmp)
+        if "small" in args.only:
+            bench_small(args.repeat, out)
+        if "pile" in args.only:
+            for steps, interval in ((args.pile_steps, 1), (3 * args.pile_steps, 10)):
+                bench_pile(steps, interval, args.repeat, out)
+        if "synthetic" in args.only:
+            bench_synthetic(args.blocks, args.steps or (100 if args.quick else 1000),
+                            args.variants, out)
 
 
 if __name__ == "__main__":

@@ -51,7 +51,8 @@ class Recorder(Protocol):
         """Called once before the first step with the model (initial geometry)."""
 
     def record(self, frame: Frame) -> None:
-        """Called at every recorded step; must make the step durable before returning."""
+        """Called at every recorded step; the step must become durable (kept by a run that
+        is killed) by the recorder's flush policy, at the latest at `end`."""
 
     def end(self, status: str, message: str = "", summary: dict[str, Any] | None = None) -> None:
         """Called once when the run ends, whatever the status."""

@@ -171,17 +171,57 @@ def plot_snapshot(result: Result | PathLike, step: int | None, path: PathLike) -
     return _save(fig, path)
 
 
-def plot_all(result_path: PathLike, out_dir: PathLike | None = None) -> list[Path]:
-    """Every plot of a result file as PNGs in `out_dir` (default `<result stem>_plots/`)."""
-    src = Path(result_path)
+def snapshot_steps(result: Result, times: list[float] | None = None,
+                   steps: list[int] | None = None) -> list[int]:
+    """Step indices of the 3-D snapshots: the recorded step nearest each time in `times` (s)
+    and the recorded solver steps `steps`, in that order without repeats.
+
+    ValueError for a time outside the recorded times or a step that was not recorded.
+    """
+    t, recorded = result.times, result.steps
+    out: list[int] = []
+    for x in times or []:
+        if not len(t) or not (t[0] - 1e-9 * max(1.0, abs(t[-1])) <= x
+                              <= t[-1] + 1e-9 * max(1.0, abs(t[-1]))):
+            span = f"{t[0]:g} to {t[-1]:g} s" if len(t) else "no steps"
+            raise ValueError(f"time {x:g} s is outside the recorded times ({span})")
+        out.append(int(np.argmin(np.abs(t - x))))
+    for n in steps or []:
+        hits = np.flatnonzero(recorded == n)
+        if not len(hits):
+            span = (f"{recorded[0]} to {recorded[-1]}, {len(recorded)} records"
+                    if len(recorded) else "no steps")
+            raise ValueError(f"step {n} was not recorded (recorded steps: {span})")
+        out.append(int(hits[0]))
+    return list(dict.fromkeys(out))
+
+
+def plot_all(result: Result | PathLike, out_dir: PathLike | None = None, *,
+             blocks: list[str | int] | None = None, times: list[float] | None = None,
+             steps: list[int] | None = None) -> list[Path]:
+    """Every plot of a result file as PNGs in `out_dir` (default `<result stem>_plots/`).
+
+    `blocks`: names or indices of the blocks in the histories (default: the free blocks that
+    moved most, at most 8). `times` (s) and `steps` (solver steps): 3-D snapshots at the
+    recorded steps nearest those times and at those recorded steps, `snapshot_step<N>.png`
+    (default: `snapshot_initial.png` and `snapshot_final.png`).
+    """
+    if not isinstance(result, Result):
+        with open_result(result) as r:
+            return plot_all(r, out_dir, blocks=blocks, times=times, steps=steps)
+    src = result.path
     out = Path(out_dir) if out_dir is not None else src.with_name(f"{src.stem}_plots")
     out.mkdir(parents=True, exist_ok=True)
-    with open_result(src) as r:
-        if r.n_steps == 0:
-            return [plot_snapshot(r, None, out / "snapshot_initial.png")]
-        return [
-            plot_histories(r, out / "histories.png"),
-            plot_energy(r, out / "energy.png"),
-            plot_snapshot(r, None, out / "snapshot_initial.png"),
-            plot_snapshot(r, -1, out / "snapshot_final.png"),
-        ]
+    r = result
+    for b in blocks or []:
+        r.block_index(b)  # an unknown block fails before any plot is made
+    chosen = times is not None or steps is not None
+    picks = snapshot_steps(r, times, steps) if chosen else []
+    if r.n_steps == 0:
+        return [plot_snapshot(r, None, out / "snapshot_initial.png")]
+    paths = [plot_histories(r, out / "histories.png", blocks), plot_energy(r, out / "energy.png")]
+    if not chosen:
+        return paths + [plot_snapshot(r, None, out / "snapshot_initial.png"),
+                        plot_snapshot(r, -1, out / "snapshot_final.png")]
+    return paths + [plot_snapshot(r, k, out / f"snapshot_step{int(r.steps[k])}.png")
+                    for k in picks]

@@ -1,9 +1,12 @@
 """Run results as one HDF5 file: an incremental writer (a Recorder) and a reader.
 
-The writer appends every recorded step to resizable, chunked, gzip+shuffle datasets in
-HDF5 single-writer/multiple-reader (SWMR) mode and flushes, so a run that is killed keeps
-every flushed step and its status stays "running". Layout (K steps, n blocks, V surface
-vertices, F faces, C contacts in all):
+The writer appends the recorded steps to resizable, chunked, gzip+shuffle datasets in
+HDF5 single-writer/multiple-reader (SWMR) mode, in batches, each followed by a flush (at
+the first step, then at least every `flush_seconds` of wall time, default 1 s, or every
+`flush_every` steps), so a run that is killed keeps every flushed step and its status
+stays "running". The file appears at its path (by a rename) only once its static part is
+written; an existing file is replaced, never rewritten in place. Layout (K steps,
+n blocks, V surface vertices, F faces, C contacts in all):
 
 - root attrs: `format` "polydda-result", `format_version`, `engine_version`,
   `schema_version` (when known), `status`, `message`, `summary` (JSON text, set by end)
@@ -32,7 +35,12 @@ import hashlib
 import json
 import logging
 import os
+import secrets
+import time
+import zlib
+from collections import deque
 from collections.abc import Iterator
+from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
 from types import TracebackType
@@ -63,6 +71,11 @@ LIBVER = ("v110", "v110")
 _COMPRESS_MIN = 4096
 _SHARED_CHUNK = 8 * 1024
 _CHUNK_MAX = 8 * 1024 * 1024
+#: pending steps are written and flushed once they hold about this many bytes
+_FLUSH_BYTES = 32 * 1024 * 1024
+#: batches of large steps that may wait for the writer's thread (which derives the VTKHDF
+#: points and compresses while the run goes on) before `record` waits too
+_MAX_INFLIGHT = 2
 #: contacts (a variable count per step) are compressed in models of at least this many
 #: blocks, in chunks of `n_blocks` rows (a rewritten partial chunk leaks < 1 chunk per step)
 _CONTACT_COMPRESS_BLOCKS = 100
@@ -175,11 +188,95 @@ def transform_points(
     return centroids + np.einsum("pij,pj->pi", affine, x0 - c0)
 
 
+@dataclass
+class _PendingStep:
+    """One recorded step held in memory until the next flush."""
+
+    arrays: dict[str, np.ndarray]  # history arrays by name, (n, *tail) each
+    contacts: dict[str, np.ndarray]  # contact fields (empty: no contacts this step)
+    contact_end: int  # contact rows of all steps up to this one
+    scalars: tuple[Any, ...]  # step, time, dt, open_close_iterations, max_penetration, energies
+
+
+@dataclass
+class _Batch:
+    """Steps prepared for writing: values per dataset path, in write order, and the
+    compressed whole-step chunks of the datasets written chunk by chunk."""
+
+    m: int
+    writes: list[tuple[str, np.ndarray]]
+    chunks: dict[str, list[bytes]]
+
+
+@dataclass
+class _Job:
+    """Pending steps handed over for writing (from step index `k0`), and the thread's
+    :class:`_Batch` being prepared from them (None: prepared when written)."""
+
+    pend: list[_PendingStep]
+    k0: int
+    future: Future[_Batch] | None = None
+
+    def ready(self) -> bool:
+        return self.future is None or self.future.done()
+
+
+def _deflate(values: np.ndarray, level: int) -> bytes:
+    """One chunk through HDF5's shuffle + deflate filters (what H5Z would store)."""
+    raw = np.ascontiguousarray(values)
+    size = raw.dtype.itemsize
+    shuffled = np.ascontiguousarray(raw.view(np.uint8).reshape(-1, size).T)
+    return zlib.compress(shuffled, level)
+
+
+def _inode(path: Path) -> tuple[int, int] | None:
+    """(device, inode) of the file at `path`, None if there is none."""
+    try:
+        st = os.stat(path)
+    except FileNotFoundError:
+        return None
+    return st.st_dev, st.st_ino
+
+
+def _publish(tmp: Path, path: Path, overwrite: bool) -> None:
+    """Give the finished-static file `tmp` the name `path`: an atomic rename that replaces
+    an existing file (`overwrite`) or a hard link that refuses to (FileExistsError)."""
+    if overwrite:
+        os.replace(tmp, path)
+        return
+    try:
+        os.link(tmp, path)
+    except FileExistsError:
+        raise FileExistsError(f"{path} exists; results are never rewritten in place") from None
+    except OSError:  # a file system without hard links
+        if path.exists():
+            raise FileExistsError(f"{path} exists; results are never rewritten in place") \
+                from None
+        os.replace(tmp, path)
+        return
+    tmp.unlink()
+
+
 class ResultWriter:
     """Writes one run to one HDF5 file as it goes; implements the :class:`Recorder` protocol.
 
-    `flush_every` steps between flushes (1: every step durable when `record` returns).
-    The file must not exist unless `overwrite`; a file that `end` closed is never reopened.
+    Recorded steps are buffered and written together, then flushed (durable, visible to
+    readers): the first step at once; then a batch is started whenever `flush_every`
+    records are pending, `flush_seconds` of wall time have passed since the last one
+    (checked at each record) or about `_FLUSH_BYTES` are pending, and everything at
+    :meth:`flush` and :meth:`end`. Whole-step chunks of large, compressed datasets are
+    compressed by a thread while the run goes on (`background`, the default; the engine
+    mostly uses one core); such a batch is written and flushed at the first `record` after
+    its compression is done. A killed run keeps every flushed step
+    (:attr:`n_flushed`); `flush_every=1` makes every step durable when `record` returns.
+    Writing per batch removes the per-step cost that does not scale with the data (~50
+    datasets grow per step).
+
+    The file is created under a temporary name beside `path` (`.NAME.PID.HEX.tmp`, left
+    only by a process killed inside `begin`) and renamed to `path` once its static part is
+    written, before the first step: `path` is never truncated or rewritten in place. With
+    `overwrite`, an existing file at `path` is replaced by the rename (a reader holding it
+    keeps a valid file); otherwise it must not exist.
     """
 
     def __init__(
@@ -189,24 +286,33 @@ class ResultWriter:
         compression: str | None = "gzip",
         compression_level: int = 4,
         record_contacts: bool = True,
-        flush_every: int = 1,
+        flush_every: int = 1000,
+        flush_seconds: float | None = 1.0,
         overwrite: bool = False,
         schema_version: str | None = None,
+        background: bool = True,
     ) -> None:
         if compression not in ("gzip", None):
             raise ValueError(f"compression must be 'gzip' or None (ParaView reads both), "
                              f"not {compression!r}")
         if flush_every < 1:
             raise ValueError("flush_every must be >= 1")
+        if flush_seconds is not None and not flush_seconds >= 0:
+            raise ValueError("flush_seconds must be >= 0 (or None: by count only)")
         self.path = Path(path)
         self.compression = compression
         self.compression_level = int(compression_level)
         self.record_contacts = record_contacts
         self.flush_every = int(flush_every)
+        self.flush_seconds = flush_seconds
         self.overwrite = overwrite
         self.schema_version = schema_version
+        self.background = background
+        #: steps given to `record`, and steps written and flushed to the file (durable)
         self.n_recorded = 0
+        self.n_flushed = 0
         self._file: h5py.File | None = None
+        self._inode: tuple[int, int] | None = None
         self._static: _Static | None = None
         self._ended = False
         self._n_contacts = 0
@@ -214,6 +320,13 @@ class ResultWriter:
         self._h: dict[str, h5py.Dataset] | None = None
         self._nf = 0
         self._n_blocks = 0
+        self._pending: list[_PendingStep] = []
+        self._pending_bytes = 0
+        self._last_flush = 0.0
+        #: datasets whose chunks are whole steps, compressed off the main thread
+        self._direct: dict[str, np.dtype] = {}
+        self._pool: ThreadPoolExecutor | None = None
+        self._inflight: deque[_Job] = deque()
 
     # --- helpers
     def _ds(self, group: h5py.Group, name: str, tail: tuple[int, ...], dtype: Any,
@@ -241,8 +354,11 @@ class ResultWriter:
         if compress:
             kw = {"compression": "gzip", "compression_opts": self.compression_level,
                   "shuffle": True}
-        return group.create_dataset(name, shape=(0, *tail), maxshape=(None, *tail),
-                                    dtype=dtype, chunks=(rows, *tail_chunk), **kw)
+        ds = group.create_dataset(name, shape=(0, *tail), maxshape=(None, *tail),
+                                  dtype=dtype, chunks=(rows, *tail_chunk), **kw)
+        if compress and not contact and rows == rows_per_step and tail_chunk == tail:
+            self._direct[ds.name.lstrip("/")] = ds.dtype  # whole-step chunks: _deflate
+        return ds
 
     @staticmethod
     def _append(ds: h5py.Dataset, values: np.ndarray) -> None:
@@ -272,8 +388,25 @@ class ResultWriter:
             raise FileExistsError(f"{self.path} exists; results are never rewritten in place")
         self.path.parent.mkdir(parents=True, exist_ok=True)
         self.record_contacts = self.record_contacts and model.controls.record_contacts
-        f = h5py.File(self.path, "w", libver=LIBVER)
-        self._file = f
+        # a new name beside `path` (same file system: the rename is atomic), created with
+        # the permissions the umask gives, like any other output file
+        tmp = self.path.with_name(f".{self.path.name}.{os.getpid()}.{secrets.token_hex(4)}.tmp")
+        try:
+            f = h5py.File(tmp, "x", libver=LIBVER)
+            self._file = f
+            self._write_static(f, model, scene_json)
+            _publish(tmp, self.path, self.overwrite)
+        except BaseException:
+            if self._file is not None:
+                self._file.close()
+                self._file = None
+            tmp.unlink(missing_ok=True)
+            raise
+        self._inode = _inode(self.path)
+        self._last_flush = time.monotonic()
+
+    def _write_static(self, f: h5py.File, model: Model, scene_json: str | None) -> None:
+        """Root attributes, scene, initial geometry and empty per-step datasets; SWMR on."""
         st = self._static = _flatten_model(model)
         n, nv = len(model.blocks), len(st.vertices)
         self._n_blocks = n
@@ -384,38 +517,29 @@ class ResultWriter:
 
     def _handles(self) -> dict[str, h5py.Dataset]:
         """Every growing dataset by its path (looked up once; lookups cost per step)."""
-        f = self._file
-        assert f is not None
-        out: dict[str, h5py.Dataset] = {}
-        f.visititems(lambda name, obj: out.__setitem__(name, obj)
-                     if isinstance(obj, h5py.Dataset) and obj.maxshape[:1] == (None,) else None)
-        return out
+        if self._h is None:
+            f = self._file
+            assert f is not None
+            out: dict[str, h5py.Dataset] = {}
+            f.visititems(lambda name, obj: out.__setitem__(name, obj) if isinstance(
+                obj, h5py.Dataset) and obj.maxshape[:1] == (None,) else None)
+            self._h = out
+        return self._h
 
     def record(self, frame: Frame) -> None:
-        """Append one step to every dataset; flush (durable) every `flush_every` steps."""
-        f, st = self._file, self._static
-        if f is None or st is None or self._ended:
+        """Take one step (copied); write and flush the pending steps as the policy says."""
+        st = self._static
+        if self._file is None or st is None or self._ended:
             raise RuntimeError("record() needs begin() first and no end() yet")
-        if self._h is None:
-            self._h = self._handles()
-        h, app = self._h, self._append
         n = len(st.centroid)
-        arrays = {
-            "centroid": np.asarray(frame.centroids, float),
-            "rotation": np.asarray(frame.rotation, float),
-            "affine": np.asarray(frame.affine, float),
-            "velocity": np.asarray(frame.velocity, float),
-            "stress": np.asarray(frame.stress, float),
-        }
+        arrays = {name: np.array(getattr(frame, attr), dtype=float) for name, attr in
+                  (("centroid", "centroids"), ("rotation", "rotation"), ("affine", "affine"),
+                   ("velocity", "velocity"), ("stress", "stress"))}
         for name, tail in _HISTORY_SHAPES.items():
             if arrays[name].shape != (n, *tail):
                 raise ValueError(f"frame.{name} has shape {arrays[name].shape}, "
                                  f"expected {(n, *tail)}")
-        k = self.n_recorded
-        for name, a in arrays.items():
-            app(h[f"history/{name}"], a)
-
-        # contacts
+        contacts: dict[str, np.ndarray] = {}
         cs = frame.contacts
         c = 0 if cs is None or not self.record_contacts else len(cs)
         if c:
@@ -423,78 +547,182 @@ class ResultWriter:
             vals = {name: getattr(cs, name) for name in _CONTACT_FIELDS
                     if name not in ("normal_force", "shear_force")}
             vals["normal_force"] = (np.full(c, np.nan) if frame.normal_force is None
-                                    else np.asarray(frame.normal_force, float))
+                                    else frame.normal_force)
             vals["shear_force"] = (np.full((c, 3), np.nan) if frame.shear_force is None
-                                   else np.asarray(frame.shear_force, float))
+                                   else frame.shear_force)
             for name, (tail, dtype) in _CONTACT_FIELDS.items():
-                a = np.asarray(vals[name]).astype(dtype, copy=False).reshape(c, *tail)
-                app(h[f"contacts/{name}"], a)
+                contacts[name] = np.array(vals[name], dtype=dtype).reshape(c, *tail)
         self._n_contacts += c
-        app(h["contacts/step_offsets"], np.array([self._n_contacts], np.int64))
-
-        # VTKHDF: points, point displacement and velocity
-        vb = st.vertex_block
-        cent, aff = arrays["centroid"], arrays["affine"]
-        pts = transform_points(st.vertices, st.centroid[vb], cent[vb], aff[vb])
-        vel = point_velocities(pts, cent[vb], arrays["velocity"][vb])
-        nv = len(pts)
-        one, zero, zero4 = np.ones(1, np.int64), np.zeros(1, np.int64), np.zeros((1, 4), np.int64)
-        app(h["VTKHDF/Points"], pts)
-        app(h["VTKHDF/PointData/displacement"], pts - st.vertices)
-        app(h["VTKHDF/PointData/velocity"], vel)
-        app(h["VTKHDF/NumberOfPoints"], one * nv)
-        for name in ("Vertices", "Lines", "Strips"):
-            app(h[f"VTKHDF/{name}/NumberOfCells"], zero)
-            app(h[f"VTKHDF/{name}/NumberOfConnectivityIds"], zero)
-        app(h["VTKHDF/Polygons/NumberOfCells"], one * self._nf)
-        app(h["VTKHDF/Polygons/NumberOfConnectivityIds"], one * len(st.face_connectivity))
-        s = "VTKHDF/Steps/"
-        app(h[s + "Values"], np.array([frame.time], float))
-        app(h[s + "PartOffsets"], one * k)
-        app(h[s + "NumberOfParts"], one)
-        app(h[s + "PointOffsets"], one * (k * nv))
-        app(h[s + "CellOffsets"], zero4)
-        app(h[s + "ConnectivityIdOffsets"], zero4)
-        app(h[s + "PointDataOffsets/block_id"], zero)
-        app(h[s + "PointDataOffsets/displacement"], one * (k * nv))
-        app(h[s + "PointDataOffsets/velocity"], one * (k * nv))
-        app(h[s + "CellDataOffsets/block_id"], zero)
-        app(h[s + "CellDataOffsets/face_tag"], zero)
-        f["VTKHDF/Steps"].attrs.modify("NSteps", np.int64(k + 1))
-
-        # per-step scalars; `step` last (a reader counts complete steps on all of them)
-        for name in ENERGY_NAMES:
-            app(h[f"steps/energies/{name}"], np.array([frame.energies.get(name, np.nan)]))
         extra = set(frame.energies) - set(ENERGY_NAMES) - self._ignored_energies
         if extra:
             log.warning("energies %s are not in the result layout and are not stored",
                         sorted(extra))
             self._ignored_energies |= extra
-        app(h["steps/time"], np.array([frame.time], float))
-        app(h["steps/dt"], np.array([frame.dt], float))
-        app(h["steps/open_close_iterations"], one * frame.open_close_iterations)
-        app(h["steps/max_penetration"], np.array([frame.max_penetration], float))
-        app(h["steps/step"], one * frame.step)
-        self.n_recorded = k + 1
-        if self.n_recorded % self.flush_every == 0:
-            f.flush()
+        scalars = (frame.step, frame.time, frame.dt, frame.open_close_iterations,
+                   frame.max_penetration,
+                   tuple(frame.energies.get(name, np.nan) for name in ENERGY_NAMES))
+        self._pending.append(_PendingStep(arrays, contacts, self._n_contacts, scalars))
+        self._pending_bytes += (sum(a.nbytes for a in arrays.values())
+                                + sum(a.nbytes for a in contacts.values())
+                                + 72 * len(st.vertices))  # VTKHDF points written per step
+        self.n_recorded += 1
+        self._commit_ready(wait=False)
+        now = time.monotonic()
+        if self.flush_every == 1 or self.n_flushed + len(self._inflight) == 0:
+            self.flush()  # every step durable on return; the first step at once
+        elif (len(self._pending) >= self.flush_every or self._pending_bytes >= _FLUSH_BYTES
+              or (self.flush_seconds is not None
+                  and now - self._last_flush >= self.flush_seconds)):
+            self._launch()
+            self._commit_ready(wait=False)  # at once unless its chunks are compressing
+
+    def flush(self) -> None:
+        """Write every recorded step and flush: all of them durable when this returns."""
+        if self._file is None or self._static is None:
+            raise RuntimeError("flush() needs begin() first and no end() yet")
+        self._launch()
+        self._commit_ready(wait=True)
+
+    def _launch(self) -> None:
+        """Hand the pending steps over as one batch (large steps: prepared and compressed by
+        the writer's thread from now on); :meth:`_commit_ready` writes batches in order."""
+        self._last_flush = time.monotonic()
+        if not self._pending:
+            return
+        while len(self._inflight) >= _MAX_INFLIGHT:  # the thread is behind: wait
+            self._commit(self._inflight.popleft())
+        pend, self._pending, self._pending_bytes = self._pending, [], 0
+        job = _Job(pend, self.n_flushed + sum(len(j.pend) for j in self._inflight))
+        if self._direct and self.background:  # large steps: prepared by the thread
+            if self._pool is None:
+                self._pool = ThreadPoolExecutor(max_workers=1,
+                                                thread_name_prefix="polydda-result")
+            job.future = self._pool.submit(self._prepare, job.pend, job.k0)
+        self._inflight.append(job)
+
+    def _commit_ready(self, wait: bool) -> None:
+        """Write and flush the batches that are prepared (all of them if `wait`)."""
+        while self._inflight and (wait or self._inflight[0].ready()):
+            self._commit(self._inflight.popleft())
+
+    def _prepare(self, pend: list[_PendingStep], k0: int) -> _Batch:
+        """The values of every growing dataset for steps `pend` (step indices from `k0`),
+        in the order they are written (`steps/step` last: a reader counts the steps every
+        per-step dataset holds); whole-step chunks of compressed datasets compressed.
+        Runs in the writer's thread for large steps: numpy and zlib only, no HDF5."""
+        st = self._static
+        assert st is not None
+        m = len(pend)
+        writes: list[tuple[str, np.ndarray]] = []
+        hist = {name: np.stack([p.arrays[name] for p in pend]) for name in _HISTORY_SHAPES}
+        writes += [(f"history/{name}", a) for name, a in hist.items()]
+        if self.record_contacts:
+            for name in _CONTACT_FIELDS:
+                parts = [p.contacts[name] for p in pend if p.contacts]
+                if parts:
+                    writes.append((f"contacts/{name}", np.concatenate(parts)))
+        writes.append(("contacts/step_offsets",
+                       np.array([p.contact_end for p in pend], np.int64)))
+
+        # VTKHDF: points, point displacement and velocity
+        nv = len(st.vertices)
+        vb = st.vertex_block
+        cent = hist["centroid"][:, vb]  # (m, V, 3)
+        pts = cent + np.einsum("mvij,vj->mvi", hist["affine"][:, vb],
+                               st.vertices - st.centroid[vb])
+        vel = point_velocities(pts.reshape(-1, 3), cent.reshape(-1, 3),
+                               hist["velocity"][:, vb].reshape(-1, 12))
+        writes += [("VTKHDF/Points", pts.reshape(-1, 3)),
+                   ("VTKHDF/PointData/displacement", (pts - st.vertices).reshape(-1, 3)),
+                   ("VTKHDF/PointData/velocity", vel)]
+        ks = np.arange(k0, k0 + m, dtype=np.int64)
+        zero, zero4 = np.zeros(m, np.int64), np.zeros((m, 4), np.int64)
+        writes.append(("VTKHDF/NumberOfPoints", np.full(m, nv, np.int64)))
+        for name in ("Vertices", "Lines", "Strips"):
+            writes.append((f"VTKHDF/{name}/NumberOfCells", zero))
+            writes.append((f"VTKHDF/{name}/NumberOfConnectivityIds", zero))
+        writes.append(("VTKHDF/Polygons/NumberOfCells", np.full(m, self._nf, np.int64)))
+        writes.append(("VTKHDF/Polygons/NumberOfConnectivityIds",
+                       np.full(m, len(st.face_connectivity), np.int64)))
+        scal = [p.scalars for p in pend]
+        s = "VTKHDF/Steps/"
+        writes += [
+            (s + "Values", np.array([x[1] for x in scal], float)),
+            (s + "PartOffsets", ks), (s + "NumberOfParts", np.ones(m, np.int64)),
+            (s + "PointOffsets", ks * nv), (s + "CellOffsets", zero4),
+            (s + "ConnectivityIdOffsets", zero4), (s + "PointDataOffsets/block_id", zero),
+            (s + "PointDataOffsets/displacement", ks * nv),
+            (s + "PointDataOffsets/velocity", ks * nv),
+            (s + "CellDataOffsets/block_id", zero), (s + "CellDataOffsets/face_tag", zero),
+        ]
+        energies = np.array([x[5] for x in scal], float).reshape(m, len(ENERGY_NAMES))
+        writes += [(f"steps/energies/{name}", energies[:, j])
+                   for j, name in enumerate(ENERGY_NAMES)]
+        writes += [("steps/time", np.array([x[1] for x in scal], float)),
+                   ("steps/dt", np.array([x[2] for x in scal], float)),
+                   ("steps/open_close_iterations", np.array([x[3] for x in scal], np.int64)),
+                   ("steps/max_penetration", np.array([x[4] for x in scal], float)),
+                   ("steps/step", np.array([x[0] for x in scal], np.int64))]
+
+        chunks: dict[str, list[bytes]] = {}
+        for path, values in writes:
+            if path in self._direct and len(values):
+                steps = np.ascontiguousarray(values, dtype=self._direct[path]).reshape(m, -1)
+                chunks[path] = [_deflate(row, self.compression_level) for row in steps]
+        return _Batch(m, writes, chunks)
+
+    def _commit(self, job: _Job) -> None:
+        """Append one batch to the datasets (compressed chunks as they are) and flush."""
+        f = self._file
+        assert f is not None
+        if job.future is None or job.future.cancel():  # not started: prepared here
+            batch = self._prepare(job.pend, job.k0)
+        else:
+            batch = job.future.result()
+        h = self._handles()
+        for path, values in batch.writes:
+            ds = h[path]
+            if path not in batch.chunks:
+                self._append(ds, values)
+                continue
+            dsid = ds.id
+            shape = dsid.get_space().shape
+            rows = len(values) // batch.m  # rows of one step: one chunk
+            dsid.set_extent((shape[0] + len(values), *shape[1:]))
+            tail = (0,) * (len(shape) - 1)
+            for j, data in enumerate(batch.chunks[path]):
+                dsid.write_direct_chunk((shape[0] + j * rows, *tail), data)
+        self.n_flushed += batch.m
+        f["VTKHDF/Steps"].attrs.modify("NSteps", np.int64(self.n_flushed))
+        f.flush()
 
     def end(self, status: str, message: str = "", summary: dict[str, Any] | None = None) -> None:
-        """Close the SWMR session, then write status, message and summary (JSON) and close."""
+        """Write the pending steps and close the SWMR session, then write status, message
+        and summary (JSON) and close."""
         if status not in STATUSES:
             raise ValueError(f"status must be one of {STATUSES}, not {status!r}")
         if self._file is None or self._ended:
             raise RuntimeError("end() needs begin() first and may be called once")
         text = json.dumps(summary if summary is not None else {}, default=_json_default)
-        self._file.flush()
-        self._file.close()
-        self._file = None
-        self._ended = True
+        try:
+            self.flush()
+        finally:
+            self._inflight.clear()
+            if self._pool is not None:
+                self._pool.shutdown(wait=True, cancel_futures=True)
+                self._pool = None
+            self._file.close()
+            self._file = None
+            self._ended = True
+        if _inode(self.path) != self._inode:
+            log.warning("%s was replaced during the run; its status is not written",
+                        self.path)
+            return
         with h5py.File(self.path, "r+", libver=LIBVER) as f:
             f.attrs["status"] = status
             f.attrs["message"] = message
             f.attrs["summary"] = text
-            f.attrs["n_steps"] = np.int64(self.n_recorded)
+            f.attrs["n_steps"] = np.int64(self.n_flushed)
 
     # --- context manager: a writer left without end() says so in its status
     def __enter__(self) -> ResultWriter:
