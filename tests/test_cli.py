@@ -12,6 +12,7 @@ import pytest
 
 from engine.geometry import dip_normal
 from service.cli import main
+from tests.test_results import vtk_step
 
 EXAMPLES = Path(__file__).resolve().parent.parent / "examples"
 WEDGE = str(EXAMPLES / "wedge.json")
@@ -229,15 +230,10 @@ def test_run_writes_result_summary_and_vtkhdf(capsys: pytest.CaptureFixture[str]
         np.testing.assert_allclose(last - first, np.broadcast_to(wedge["displacement"],
                                                                  last.shape), atol=1e-5)
 
-    vtk = pytest.importorskip("vtk")
-    reader = vtk.vtkHDFReader()
-    reader.SetFileName(str(out))
-    reader.UpdateInformation()
-    assert reader.GetNumberOfSteps() == 11
-    reader.SetStep(10)
-    reader.Update()
-    data = reader.GetOutput()
+    reader, data = vtk_step(out, 10)
     from vtk.util.numpy_support import vtk_to_numpy
+
+    assert reader.GetNumberOfSteps() == 11
 
     pts = vtk_to_numpy(data.GetPoints().GetData())
     ids = vtk_to_numpy(data.GetPointData().GetArray("block_id"))

@@ -285,19 +285,26 @@ def test_live_reader_sees_new_steps(tmp_path: Path) -> None:
     w.end("completed")
 
 
-def test_vtkhdf_opens_in_vtk(tmp_path: Path) -> None:
+def vtk_step(path: Path, step: int):  # noqa: ANN201 (vtk types: optional import)
+    """`(reader, output)` of ParaView's VTKHDF reader at recorded `step` of the file
+    (skips the test without the vtk wheel)."""
     vtk = pytest.importorskip("vtk")
-    from vtk.util.numpy_support import vtk_to_numpy
-
-    path = tmp_path / "run.h5"
-    model = write_run(path, n_steps=7)
     reader = vtk.vtkHDFReader()
     reader.SetFileName(str(path))
     reader.Update()
-    assert reader.GetNumberOfSteps() == 7
-    reader.SetStep(6)
+    reader.SetStep(step)
     reader.Update()
-    out = reader.GetOutput()
+    return reader, reader.GetOutput()
+
+
+def test_vtkhdf_opens_in_vtk(tmp_path: Path) -> None:
+    path = tmp_path / "run.h5"
+    model = write_run(path, n_steps=7)
+    reader, out = vtk_step(path, 6)
+    import vtk
+    from vtk.util.numpy_support import vtk_to_numpy
+
+    assert reader.GetNumberOfSteps() == 7
     assert out.GetNumberOfCells() == 12
     pts = vtk_to_numpy(out.GetPoints().GetData())
     want = np.concatenate(exact_vertices(model, 0.6))
@@ -472,14 +479,9 @@ def test_large_steps_compressed_by_the_writer_read_back_exactly(tmp_path: Path,
             np.testing.assert_array_equal(r.centroids(k), fr.centroids)
             np.testing.assert_array_equal(r.contacts(k)["gap"], fr.contacts.gap)
         last = np.concatenate(r.vertices(6))
-    vtk = pytest.importorskip("vtk")
+    reader, out = vtk_step(path, 6)
     from vtk.util.numpy_support import vtk_to_numpy
 
-    reader = vtk.vtkHDFReader()
-    reader.SetFileName(str(path))
-    reader.Update()
     assert reader.GetNumberOfSteps() == 7
-    reader.SetStep(6)
-    reader.Update()
-    pts = vtk_to_numpy(reader.GetOutput().GetPoints().GetData())
+    pts = vtk_to_numpy(out.GetPoints().GetData())
     assert np.abs(pts - last).max() < 1e-12
