@@ -504,7 +504,7 @@ def _pendulum(dt: float, omega0: float = 0.1) -> tuple[FrameLog, np.ndarray]:
 
 def test_cube_pinned_at_a_point_swings_as_a_compound_pendulum() -> None:
     """A compound pendulum: ω² = m g L / (I_c + m L²) with L = 0.5 m, I_c = m / 6, so the
-    period is 2π √(5 / (12 g L)) = 1.8306 s and the amplitude ω₀ / ω. The pin stays put
+    period is 2π √(5 / (12 g L)) = 1.8313 s and the amplitude ω₀ / ω. The pin stays put
     to the penalty spring's stretch W / k_f. Within a step DDA moves blocks by the
     linearized rotation, so the pin drifts by ½ (ω Δt)² L per step and the amplitude
     carries an O(Δt) error: 0.4 % at Δt = 1 ms, halving with Δt."""
