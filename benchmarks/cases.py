@@ -227,12 +227,13 @@ def plot_accuracy(out: Path, accuracy: dict[str, Any], peers: dict[str, Any] | N
     import matplotlib.pyplot as plt
 
     rows = accuracy["rows"]
+    full_oc = max(accuracy["grid"]["oc"])  # the default limit: filled markers
     peer_rows = (peers or {}).get("rows", [])
     h.write_csv(out / "accuracy.csv", rows + peer_rows)
     names = []
     for case in dict.fromkeys(r["case"] for r in rows):
         pts = [r for r in rows if r["case"] == case]
-        fig, ax = plt.subplots(figsize=(7, 5))
+        fig, ax = plt.subplots(figsize=(9, 5))
         floor = 1e-9
         ok = [r for r in pts if r["status"] == STATUS_COMPLETED and np.isfinite(r["rel_error"])]
         bad = [r for r in pts if r not in ok]
@@ -242,7 +243,7 @@ def plot_accuracy(out: Path, accuracy: dict[str, Any], peers: dict[str, Any] | N
         for r in ok:
             c = cmap(dts.index(r["dt"]) / max(len(dts) - 1, 1))
             ax.loglog(r["wall_s"], max(r["rel_error"], floor), markers[r["penalty"]],
-                      color=c, mfc="none" if r["oc_iterations"] != 8 else c, ms=7)
+                      color=c, mfc="none" if r["oc_iterations"] < full_oc else c, ms=7)
         for r in bad:
             ax.loglog(r["wall_s"], 1.0, "x", color="red", ms=8)
         if ok:
@@ -273,7 +274,7 @@ def plot_accuracy(out: Path, accuracy: dict[str, Any], peers: dict[str, Any] | N
         ax.set_xlabel("wall time of the run (s)")
         ax.set_ylabel("relative error")
         ax.grid(True, which="both", alpha=0.3)
-        ax.legend(fontsize=7, loc="best")
+        ax.legend(fontsize=7, loc="center left", bbox_to_anchor=(1.02, 0.5))  # off the points
         fig.tight_layout()
         name = f"accuracy_{case}.png"
         fig.savefig(out / name, dpi=110)
