@@ -275,6 +275,8 @@ def cmd_run(args: argparse.Namespace) -> int:
         print(f"cannot write {out}: {exc}", file=sys.stderr)
         return EXIT_IO
     printer = None if args.quiet else _ProgressPrinter(Path(args.scene).stem)
+    if printer is not None:
+        _note_compilation()
     res = run(built.model, recorder=writer, progress=printer, scene_json=scene_text)
     if printer is not None and printer.tty:
         print(file=sys.stderr)
@@ -293,6 +295,15 @@ def cmd_run(args: argparse.Namespace) -> int:
     for w in res.summary.get("warnings", []):
         print(f"warning: {w}", file=sys.stderr)
     return EXIT_OK if res.status == STATUS_COMPLETED else EXIT_RUN
+
+
+def _note_compilation() -> None:
+    """Say why the first step of the first run on a machine takes a while."""
+    from engine import kernels_cached
+
+    if not kernels_cached():
+        print("compiling the engine's numerical kernels: the first run on this machine "
+              "takes about a minute longer (they are cached afterwards)", file=sys.stderr)
 
 
 def _write_json_atomic(path: Path, doc: Any) -> None:
@@ -326,6 +337,8 @@ def cmd_fos(args: argparse.Namespace) -> int:
             print(f"F = {r.factor:.4f}: {verdict} (mean acceleration "
                   f"{r.mean_acceleration:.3g} m/s²)", file=sys.stderr, flush=True)
 
+    if not args.quiet:
+        _note_compilation()
     result = factor_of_safety(built.model, fos_controls(built), progress=note)
     doc = result.as_dict()
     if args.json:

@@ -282,3 +282,34 @@ def test_plot_chooses_blocks_and_snapshot_times(capsys: pytest.CaptureFixture[st
     assert not (tmp_path / "bad").exists()
     code, _, err = run(capsys, "plot", str(tmp_path / "missing.h5"))
     assert code == 1 and "cannot plot" in err
+
+
+def test_run_says_when_it_compiles_the_kernels(capsys: pytest.CaptureFixture[str],
+                                               tmp_path: Path,
+                                               monkeypatch: pytest.MonkeyPatch) -> None:
+    """On a machine whose numba cache is empty, `polydda run` says why its first step
+    takes a minute; with the kernels cached it says nothing of it."""
+    import engine
+
+    scene = EXAMPLES / "free_fall.json"
+    for cached, expected in ((False, True), (True, False)):
+        monkeypatch.setattr(engine, "kernels_cached", lambda c=cached: c)
+        code, _, err = run(capsys, "run", str(scene), "--out", str(tmp_path / "r.h5"))
+        assert code == 0, err
+        assert ("compiling the engine's numerical kernels" in err) is expected
+
+
+def test_kernels_cached_looks_for_numbas_index_files(tmp_path: Path,
+                                                     monkeypatch: pytest.MonkeyPatch) -> None:
+    """The check finds numba's index file of the narrow phase beside the engine or under
+    NUMBA_CACHE_DIR, and nothing in an empty place."""
+    import engine
+
+    monkeypatch.setattr(engine, "__file__", str(tmp_path / "engine" / "__init__.py"))
+    monkeypatch.delenv("NUMBA_CACHE_DIR", raising=False)
+    assert not engine.kernels_cached()
+    cache = tmp_path / "cache" / "engine"
+    cache.mkdir(parents=True)
+    (cache / "_detection_kernels.narrow_phase-493.py311.nbi").write_bytes(b"")
+    monkeypatch.setenv("NUMBA_CACHE_DIR", str(tmp_path / "cache"))
+    assert engine.kernels_cached()
