@@ -79,11 +79,11 @@ def update_modes(d0: np.ndarray, normal: np.ndarray, dr: np.ndarray, shear0: np.
     most `max_switches` locked <-> sliding changes per step); an open contact deeper than
     `open_close_gap` closes at its first entrance (eqs. 42-47), sliding if the shear after
     entrance exceeds friction. Updates `offset`, `broken`, `reopenings`, `switches` in
-    place. Returns `(mode, tangent, dstar, d1, dr_t, along, total_shear, changed,
-    closed_changed, fric_change)`: the new modes, sliding directions and friction depths
-    d*, the end gaps, tangential slips, slips along the old tangent, shear spring
-    stretches, whether any mode / any open-closed state changed, and the largest change
-    of the friction forces relative to their largest value.
+    place. Returns `(mode, tangent, dstar, d1, dr_t, along, changed, closed_changed,
+    fric_change)`: the new modes, sliding directions and friction depths d*, the end
+    gaps, tangential slips, slips along the old tangent, whether any mode / any
+    open-closed state changed, and the largest change of the friction forces relative to
+    their largest value.
     """
     c = len(d0)
     new_mode = mode.copy()
@@ -92,7 +92,6 @@ def update_modes(d0: np.ndarray, normal: np.ndarray, dr: np.ndarray, shear0: np.
     d1 = np.empty(c)
     dr_t = np.empty((c, 3))
     along = np.empty(c)
-    total_shear = np.empty((c, 3))
     changed = False
     closed_changed = False
     fric_top = 0.0
@@ -108,8 +107,7 @@ def update_modes(d0: np.ndarray, normal: np.ndarray, dr: np.ndarray, shear0: np.
         s1 = shear0[k, 1] + offset[k, 1] + dr[k, 1]
         s2 = shear0[k, 2] + offset[k, 2] + dr[k, 2]
         sn = s0 * n0 + s1 * n1 + s2 * n2
-        s0, s1, s2 = s0 - sn * n0, s1 - sn * n1, s2 - sn * n2
-        total_shear[k, 0], total_shear[k, 1], total_shear[k, 2] = s0, s1, s2
+        s0, s1, s2 = s0 - sn * n0, s1 - sn * n1, s2 - sn * n2  # the shear spring's stretch
         al = t0 * tangent[k, 0] + t1 * tangent[k, 1] + t2 * tangent[k, 2]
         along[k] = al
         m = mode[k]
@@ -166,8 +164,8 @@ def update_modes(d0: np.ndarray, normal: np.ndarray, dr: np.ndarray, shear0: np.
         if (nm != OPEN) != closed:
             closed_changed = True
     fric_change = fric_diff / max(fric_top, 1e-300)
-    return (new_mode, new_tangent, new_dstar, d1, dr_t, along, total_shear, changed,
-            closed_changed, fric_change)
+    return (new_mode, new_tangent, new_dstar, d1, dr_t, along, changed, closed_changed,
+            fric_change)
 
 
 @nb.njit(cache=True)

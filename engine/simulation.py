@@ -521,8 +521,8 @@ class Simulation:
             clock = self._tick("solve", clock)
             dr = relative_displacement(x, dmap, bi, bj, ti, tj)
             # ---- update modes (paper Table 2)
-            (new_mode, new_tangent, new_dstar, d1, dr_t, along, total_shear, changed,
-             closed_changed, fric_change) = update_modes(
+            (new_mode, new_tangent, new_dstar, d1, dr_t, along, changed, closed_changed,
+             fric_change) = update_modes(
                 d0, n, dr, shear0, offset, mode, tangent, broken, reopenings, switches,
                 tan_phi, tension_force, cohesion_force, fric_mag, fric_prev, self.kn,
                 self.ks, self.open_close_gap, MAX_REOPENINGS, MAX_SHEAR_SWITCHES)
