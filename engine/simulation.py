@@ -682,10 +682,6 @@ class Simulation:
         strain = np.abs(d[:, 6:]).max(axis=1) * 2.0 * self.radius
         return trans + rot + strain
 
-    def max_point_displacement(self, d: np.ndarray) -> float:
-        """Bound on the largest displacement of any block point in the step (m)."""
-        return float(self.point_displacements(d).max(initial=0.0))
-
     def advance(self, res: StepResult, dt: float) -> None:
         """Move the blocks (exact rotation), update velocities, stresses and contact memory."""
         s = self.state

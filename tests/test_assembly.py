@@ -82,6 +82,8 @@ def test_plan_matrix_is_the_sum_of_contact_terms(dense: bool,
         assert isinstance(k, np.ndarray) is dense
         ref = _brute_force(*args, kn, ks)
         np.testing.assert_allclose(full, ref, atol=1e-12)
+        if not dense:  # the coupled rows from the modes are those read off K
+            np.testing.assert_array_equal(plan.coupled, coupled_rows(k))
         d = plan.d
         for r in range(plan.m):
             np.testing.assert_allclose(kdiag[r], ref[r * d:r * d + d, r * d:r * d + d],
