@@ -184,8 +184,9 @@ def point_velocities(
 def transform_points(
     x0: np.ndarray, c0: np.ndarray, centroids: np.ndarray, affine: np.ndarray
 ) -> np.ndarray:
-    """Moved points `c + A (X0 - c0)` `(p, 3)`; every argument is per point (`affine (p,3,3)`)."""
-    return centroids + np.einsum("pij,pj->pi", affine, x0 - c0)
+    """Moved points `c + A (X0 - c0)` `(..., p, 3)`; every argument is per point
+    (`affine (..., p, 3, 3)`), leading axes (steps) broadcast."""
+    return centroids + np.einsum("...ij,...j->...i", affine, x0 - c0)
 
 
 @dataclass
@@ -628,8 +629,7 @@ class ResultWriter:
         nv = len(st.vertices)
         vb = st.vertex_block
         cent = hist["centroid"][:, vb]  # (m, V, 3)
-        pts = cent + np.einsum("mvij,vj->mvi", hist["affine"][:, vb],
-                               st.vertices - st.centroid[vb])
+        pts = transform_points(st.vertices, st.centroid[vb], cent, hist["affine"][:, vb])
         vel = point_velocities(pts.reshape(-1, 3), cent.reshape(-1, 3),
                                hist["velocity"][:, vb].reshape(-1, 12))
         writes += [("VTKHDF/Points", pts.reshape(-1, 3)),
