@@ -843,7 +843,7 @@ def _closed_cells(fac: _Facets, cells: np.ndarray, scale: float, tol: Tolerances
     pos[cells] = np.arange(len(cells))
     sel = np.flatnonzero(pos[fac.cell] >= 0)
     ok = (fac.cell_volume[cells] > 0) & ~fac.cell_broken[cells]
-    small_area = sel[fac.area[sel] <= tol.length("point_merge", scale) ** 2]
+    small_area = sel[fac.area[sel] <= tol.lengths(scale).point_merge ** 2]
     ok[pos[fac.cell[small_area]]] = False
     indptr, indices = faces_to_csr([fac.ids[f] for f in sel.tolist()])
     counts = np.diff(indptr)
@@ -903,7 +903,7 @@ def cut_blocks(
     """
     warnings: list[str] = []
     scale = float(np.ptp(domain.vertices[domain.surface_vertex_ids], axis=0).max())
-    planes = _Planes(tol.length("on_plane", scale))
+    planes = _Planes(tol.lengths(scale).on_plane)
     cells, cut, filter_inside = _initial_cells(domain, planes)
     jlist, jcut = _joints_of(joints, planes)
     cells = _arrange(cells, planes, cut + jcut)
@@ -911,7 +911,7 @@ def cut_blocks(
         cells = _inside(cells, domain)
     if not cells:
         return CutResult([], ["the domain has no volume to cut"])
-    fac = _build_facets(cells, planes, tol.length("point_merge", scale))
+    fac = _build_facets(cells, planes, tol.lengths(scale).point_merge)
     if fac.multi:
         warnings.append(f"{fac.multi} facet(s) shared by more than two cells (degenerate cut)")
     owner = _real_joints(fac, planes, jlist)
@@ -966,7 +966,7 @@ def convex_decomposition(block: Polyhedron, tol: Tolerances = DEFAULT_TOLERANCES
     if block.is_convex:
         return base
     scale = float(np.ptp(block.vertices[block.surface_vertex_ids], axis=0).max())
-    planes = _Planes(tol.length("on_plane", scale))
+    planes = _Planes(tol.lengths(scale).on_plane)
     cells, cut, _ = _initial_cells(block, planes)
     cells = _inside(_arrange(cells, planes, cut), block)
     return _attach_pieces(base, cells, tol, scale)
@@ -976,7 +976,8 @@ def _attach_pieces(
     block: Polyhedron, cells: list[_Cell], tol: Tolerances, scale: float
 ) -> Polyhedron:
     """`block` with `cells` as pieces indexing its vertices (new points appended at the end)."""
-    r = tol.length("point_merge", scale)
+    lengths = tol.lengths(scale)
+    r, planarity = lengths.point_merge, lengths.planarity
     surf = block.surface_vertex_ids
     pts = np.vstack([c.verts for c in cells])
     dist, near = cKDTree(block.vertices[surf]).query(pts, distance_upper_bound=10 * r)
@@ -1001,7 +1002,7 @@ def _attach_pieces(
         surf_of = np.full(len(faces), -1, dtype=np.int64)
         for k in range(len(faces)):
             cand = np.flatnonzero((fn @ nrm[k] > 1 - 1e-9)
-                                  & (np.abs(fo - fn @ cen[k]) < tol.length("planarity", scale)))
+                                  & (np.abs(fo - fn @ cen[k]) < planarity))
             for f in cand.tolist():
                 poly = verts[block.faces[f]]
                 u, v = u_v[f]

@@ -35,6 +35,7 @@ from engine.model import (
     Material,
     Model,
     PointLoad,
+    StrengthReductionControls,
 )
 from engine.tolerances import DEFAULT_TOLERANCES
 from schemas.errors import Problems, SceneError, fmt_point
@@ -53,19 +54,6 @@ OVERLAP_TOLERANCE = 1e-6
 ON_SURFACE_TOLERANCE = 1e-6
 
 
-@dataclass(frozen=True)
-class FactorOfSafetySettings:
-    """Strength-reduction settings with names resolved to indices (see FactorOfSafetySpec)."""
-
-    tolerance: float
-    min_factor: float
-    max_factor: float
-    observation_time: float
-    averaging_start: float
-    joint_materials: tuple[int, ...]
-    watch_blocks: tuple[int, ...]
-
-
 @dataclass
 class BuildResult:
     """The engine model and what the scene called things.
@@ -81,7 +69,7 @@ class BuildResult:
     joint_material_names: list[str]
     joint_names: list[str]
     warnings: list[str] = field(default_factory=list)
-    factor_of_safety: FactorOfSafetySettings | None = None
+    factor_of_safety: StrengthReductionControls | None = None
 
     def block_index(self, name: str) -> int:
         """Index of the block called `name` (KeyError if none)."""
@@ -207,7 +195,7 @@ def _cut_domain(scene: Scene, p: Problems, warnings: list[str]) -> list[Polyhedr
         p.add("joints", "cutting the domain left no blocks")
         return []
     scale = float(np.ptp(domain.bounds, axis=0).max())
-    grid = DEFAULT_TOLERANCES.length("on_plane", scale) * 1e3
+    grid = DEFAULT_TOLERANCES.lengths(scale).on_plane * 1e3
     c = np.array([b.centroid for b in blocks]) / grid
     order = np.lexsort((np.round(c[:, 0]), np.round(c[:, 1]), np.round(c[:, 2])))
     return [blocks[i] for i in order]
@@ -520,10 +508,11 @@ def build_model(scene: Scene | str | Path | dict[str, Any]) -> BuildResult:
             watch = [k for k, b in enumerate(blocks) if not b.fixed]
         weak = (range(len(jmat_names)) if spec.joint_materials is None
                 else [jmat_names.index(n) for n in spec.joint_materials])
-        fos = FactorOfSafetySettings(
-            spec.tolerance, spec.min_factor, spec.max_factor, spec.observation_time,
-            spec.averaging_start, tuple(sorted(set(weak))), tuple(sorted(set(watch))),
-        )
+        fos = StrengthReductionControls(
+            observation_time=spec.observation_time, window_start=spec.window_start,
+            acceleration_threshold=spec.acceleration_threshold, tolerance=spec.tolerance,
+            min_factor=spec.min_factor, max_factor=spec.max_factor, max_runs=spec.max_runs,
+            joint_materials=tuple(sorted(set(weak))), watch_blocks=tuple(sorted(set(watch))))
     p.raise_if_any()
 
     if all(b.fixed for b in blocks):

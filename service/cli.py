@@ -316,15 +316,7 @@ def _write_json_atomic(path: Path, doc: Any) -> None:
 
 def fos_controls(built: BuildResult) -> StrengthReductionControls:
     """Strength-reduction controls from the scene's `analysis.factor_of_safety`."""
-    s = built.factor_of_safety
-    if s is None:
-        return StrengthReductionControls()
-    return StrengthReductionControls(
-        observation_time=s.observation_time, window_start=s.averaging_start,
-        tolerance=s.tolerance, factor_min=s.min_factor, factor_max=s.max_factor,
-        joint_materials=tuple(s.joint_materials) or None,
-        watch_blocks=tuple(s.watch_blocks) or None,
-    )
+    return built.factor_of_safety or StrengthReductionControls()
 
 
 def cmd_fos(args: argparse.Namespace) -> int:

@@ -200,10 +200,7 @@ def _factor_of_safety(build: Any, scene_text: str, job_dir: Path,
                       ctx: TaskContext) -> Outcome:
     from engine.analyses import StrengthReductionControls, TrialRun, factor_of_safety
 
-    fs = build.factor_of_safety
-    controls = StrengthReductionControls() if fs is None else StrengthReductionControls(
-        observation_time=fs.observation_time, window_start=fs.averaging_start,
-        tolerance=fs.tolerance, factor_min=fs.min_factor, factor_max=fs.max_factor)
+    controls = build.factor_of_safety or StrengthReductionControls()
     runs: list[TrialRun] = []
 
     def progress(r: TrialRun) -> None:

@@ -125,6 +125,31 @@ def test_factor_of_safety_settings() -> None:
     assert (fos.tolerance, fos.joint_materials, fos.watch_blocks) == (0.005, (0,), (1,))
     scene["analysis"]["factor_of_safety"] = {"min_factor": 3, "max_factor": 2}
     assert_problem(scene, "analysis.factor_of_safety: max_factor (2) must exceed min_factor")
+    # the old name of the window's start is still read
+    scene["analysis"]["factor_of_safety"] = {"averaging_start": 0.5, "observation_time": 2}
+    fos = build_model(scene).factor_of_safety
+    assert (fos.window_start, fos.observation_time) == (0.5, 2.0)
+
+
+def test_scene_defaults_are_the_engines(cube_on_base: dict) -> None:
+    """Defaults live in one place, the engine: a scene that says nothing gets the engine's
+    analysis controls, materials and strength-reduction settings."""
+    from engine.model import (
+        AnalysisControls,
+        JointMaterial,
+        Material,
+        StrengthReductionControls,
+    )
+
+    cube_on_base["analysis"] = {"type": "factor_of_safety"}
+    built = build_model(cube_on_base)
+    m = built.model
+    assert m.controls == AnalysisControls()
+    assert m.materials == [Material()]
+    assert m.joint_materials == [JointMaterial()]
+    free = tuple(k for k, b in enumerate(m.blocks) if not b.fixed)
+    assert built.factor_of_safety == StrengthReductionControls(
+        joint_materials=(0,), watch_blocks=free)
 
 
 # --------------------------------------------------------------------------- conversion
