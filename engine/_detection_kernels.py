@@ -752,6 +752,11 @@ def narrow_phase(pa: np.ndarray, pb: np.ndarray, x: np.ndarray, topo: SceneTopol
                         best_e, best_gap = ie, gap
                 if best_e < 0:
                     continue
+                # no deeper than the pair's shallowest face exit: an edge within reach
+                # whose plane the vertex is far behind (a narrow face next to the vertex
+                # it touches, as on thin cut blocks) reports a false deep penetration
+                if best_gap < -snap and best_gap < exit_gap - snap:
+                    continue
                 e = edges[best_e]
                 gap, nc, best = _vertex_edge_plane(
                     e, pv, x, v_surface, e_vtx, e_dir, e_faces, e_in, f_normal, f_tag, pv_vtx,
@@ -844,7 +849,8 @@ def narrow_phase(pa: np.ndarray, pb: np.ndarray, x: np.ndarray, topo: SceneTopol
                     ang, parallel, entrance, cand, cvalid, cface, ctag, adm, adm_gap, delta)
                 if best >= 0 and gap > best_gap + snap:  # ties: the first vertex
                     best_b, best_gap = vb, gap
-            if best_b >= 0:
+            # no deeper than the pair's shallowest face exit (as vertex-edge)
+            if best_b >= 0 and not (best_gap < -snap and best_gap < exit_gap - snap):
                 vv_a[m], vv_b[m], vv_gap[m] = va, best_b, best_gap
                 m += 1
         # one contact per vertex of block j's piece too: the largest gap, first on ties
