@@ -186,7 +186,8 @@ def _cut_domain(scene: Scene, p: Problems, warnings: list[str]) -> list[Polyhedr
         return []
     from engine.cutting import cut_blocks
 
-    result = cut_blocks(domain, planes, min_block_volume=d.min_block_volume)
+    result = cut_blocks(domain, planes, min_block_volume=d.min_block_volume,
+                        min_block_width=d.min_block_width)
     for w in result.warnings:
         if w not in warnings:
             warnings.append(w)

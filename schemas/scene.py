@@ -178,6 +178,12 @@ class DomainSpec(_Model):
                           "largest face with (default: 1/1000 of the median block volume; "
                           "0 keeps every block)"
     )
+    min_block_width: NonNegative | None = Field(
+        None, description="m; thinner cut blocks (slivers: their thinnest extent across "
+                          "their own faces) merge into the neighbour they share the largest "
+                          "face with (default: 1/10 of the joint sets' median spacing, or of "
+                          "the median block width without sets; 0 keeps them)"
+    )
 
     @model_validator(mode="after")
     def _one_shape(self) -> DomainSpec:
