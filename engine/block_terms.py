@@ -7,7 +7,7 @@ from __future__ import annotations
 import numpy as np
 
 from engine import assembly as asm
-from engine.motion import map_point, mass_properties
+from engine.motion import map_point, mass_matrices, mass_properties
 from engine.state import State
 from engine.system import BlockSystem
 
@@ -22,8 +22,8 @@ def block_terms(system: BlockSystem, state: State, dt: float
     """Block stiffness `(n, d, d)` and block forces `(n, 12)` on the d = 6 (rigid) or 12
     (elastic) unknowns of each block for a step of `dt` s, and the mass `(n, 12, 12)`."""
     nd = system.ndof
-    vol, second = mass_properties(system, state)
-    mass = asm.mass_matrices(system.density, vol, second)
+    vol, _ = mass_properties(system, state)
+    mass = mass_matrices(system, state)
     kb = mass[:, :nd, :nd] * (2.0 / dt**2)
     fb = (mass @ state.velocity[:, :, None])[:, :, 0]
     fb *= 2.0 / dt

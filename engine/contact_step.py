@@ -100,54 +100,90 @@ def contact_areas(contacts: ContactSet) -> np.ndarray:
     return out
 
 
-def _pair_depths(system: BlockSystem, state: State, contacts: ContactSet) -> np.ndarray:
-    """How deep `(c,)` m each contact may plausibly start from its block pair's deepest
-    penetration at the end of the last step (twice it), plus a slack of 1e-6 × the model
-    size; deeper is a detection artefact."""
-    mem = state.memory
+def _pairs(system: BlockSystem, key: np.ndarray, block_i: np.ndarray, block_j: np.ndarray
+           ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Block pairs of the memory's contacts `key (m, 4)` and of the step's contacts: the
+    sorted distinct pairs of the memory, each memory row's pair and each contact's (-1
+    where the memory has no contact of its pair)."""
     n = system.n
-    plausible = np.full(len(contacts), 1e-6 * system.scale)
-    if len(mem.key):
-        pair_keys = mem.key[:, 0] * n + mem.key[:, 2]
-        uniq, inv = np.unique(pair_keys, return_inverse=True)
-        pair_prev = np.zeros(len(uniq))
-        np.maximum.at(pair_prev, inv.ravel(), np.maximum(-mem.gap, 0.0))
-        q = contacts.block_i * n + contacts.block_j
-        pos = np.minimum(np.searchsorted(uniq, q), len(uniq) - 1)
-        found = uniq[pos] == q
-        plausible[found] += 2.0 * pair_prev[pos[found]]
-    return plausible
+    mem_pair = key[:, 0] * n + key[:, 2]
+    uniq, inv = np.unique(mem_pair, return_inverse=True)
+    q = block_i * n + block_j
+    pos = np.minimum(np.searchsorted(uniq, q), max(len(uniq) - 1, 0))
+    found = (uniq[pos] == q) if len(uniq) else np.zeros(len(q), dtype=bool)
+    return uniq, inv.ravel(), np.where(found, pos, -1)
+
+
+def _pair_energy_cap(system: BlockSystem, state: State, contacts: ContactSet,
+                     new: np.ndarray) -> None:
+    """Make the contacts of each block pair shallower, in place, until the pair's normal
+    springs start the step with no more energy than they ended the last one with: first
+    the contacts found again (in proportion, if together they exceed it), then the new ones
+    (`new (c,)`: keys not in the memory) within what is left. A pair the memory does not
+    know starts unstretched."""
+    mem = state.memory
+    uniq, mem_pair, pair = _pairs(system, mem.key, contacts.block_i, contacts.block_j)
+    closed = mem.mode != OPEN
+    room = np.bincount(mem_pair[closed], weights=np.minimum(mem.gap[closed], 0.0) ** 2,
+                       minlength=len(uniq))
+    room = np.append(room, 0.0)
+    slot = np.where(pair >= 0, pair, len(uniq))  # pairs without memory: one extra slot
+    for part in (~new, new):
+        start = np.bincount(slot[part], weights=np.minimum(contacts.gap[part], 0.0) ** 2,
+                            minlength=len(uniq) + 1)
+        over = start > room * (1 + 1e-12)
+        scale = np.sqrt(np.where(over, room / np.maximum(start, 1e-300), 1.0))
+        shrink = part & over[slot]
+        contacts.gap[shrink] *= scale[slot[shrink]]
+        room = np.maximum(room - np.minimum(start, room), 0.0)
 
 
 def plausible_gaps(system: BlockSystem, state: State, contacts: ContactSet) -> int:
-    """Start no spring with energy it never stored; returns how many contacts were found
-    implausibly deep (detection artefacts, :func:`_pair_depths`).
+    """Start no spring with energy it never stored: the gaps `contacts.gap` are made
+    shallower in place; returns how many contacts were found implausibly deep (more than
+    1e-6 of the model's size beyond what they may start with: detection artefacts).
 
-    A contact found again starts no deeper than it ended (plus the exact rotation's
-    second-order shift of its points), where re-detection picks a different plane
-    (vertex-vertex, vertex-edge); one that ended open (pressed in within the open-close
-    hysteresis) stored nothing and starts unstretched. A penalty spring started deeper
-    would push the blocks apart with energy from nowhere; its initial gap (`contacts.gap`,
-    in place) is limited to the plausible depth.
+    - On the first step, overlaps of the blocks as given are geometry, not stored energy:
+      those contacts start unstretched (the deepest is kept in the diagnostics).
+    - A contact found again starts no deeper than it ended (plus the exact rotation's
+      second-order shift of its points, where re-detection picks another plane at a vertex
+      contact); one that ended open (pressed, but not pressing) starts unstretched.
+    - A new contact (its key not in the memory: a feature changed, or a pair just met)
+      starts no deeper than its block pair's deepest spring ended; and each pair's contacts
+      are made shallower until its springs hold no more energy than they ended with.
+    A penalty spring started deeper would push the blocks apart with energy from nowhere.
     """
-    if state.step == 0 or not len(contacts) or not np.any(contacts.gap < 0):
+    gap = contacts.gap
+    if not len(contacts) or not np.any(gap < 0):
+        return 0
+    if state.step == 0:
+        d = state.diagnostics
+        d.initial_overlap = max(d.initial_overlap, float(-gap.min()))
+        d.initial_overlaps = int(np.sum(gap < 0))
+        gap[gap < 0] = 0.0
         return 0
     mem = state.memory
-    plausible = _pair_depths(system, state, contacts)
-    allowed = plausible.copy()  # the depth a spring may start at
     row = mem.find(contacts.key)
     again = row >= 0
-    if np.any(again) and state.last_d is not None:
-        turn = np.linalg.norm(state.last_d[:, 3:6], axis=1) ** 2 * system.radius
-        second = 0.5 * (turn[contacts.block_i] + turn[contacts.block_j])
+    allowed = np.zeros(len(contacts))
+    if np.any(~again) and len(mem.key):
+        uniq, mem_pair, pair = _pairs(system, mem.key, contacts.block_i, contacts.block_j)
+        deepest = np.zeros(len(uniq))
+        closed = mem.mode != OPEN
+        np.maximum.at(deepest, mem_pair[closed], np.maximum(-mem.gap[closed], 0.0))
+        met = ~again & (pair >= 0)
+        allowed[met] = deepest[pair[met]]
+    if np.any(again):
         r = row[again]
         stored = np.where(mem.mode[r] != OPEN, np.maximum(-mem.gap[r], 0.0), 0.0)
-        own = second[again] + stored
-        plausible[again] = np.minimum(plausible[again], 1e-6 * system.scale + own)
-        allowed[again] = np.minimum(allowed[again], system.touch_gap + own)
-    artefacts = int(np.sum(contacts.gap < -plausible))
-    deep = contacts.gap < -allowed
-    contacts.gap[deep] = -allowed[deep]
+        if state.last_d is not None:
+            turn = np.linalg.norm(state.last_d[:, 3:6], axis=1) ** 2 * system.radius
+            stored += 0.5 * (turn[contacts.block_i[again]] + turn[contacts.block_j[again]])
+        allowed[again] = stored
+    artefacts = int(np.sum(gap < -(allowed + 1e-6 * system.scale)))
+    np.maximum(gap, -allowed, out=gap)
+    if len(mem.key):  # (with no memory, `allowed` is zero: every spring starts unstretched)
+        _pair_energy_cap(system, state, contacts, ~again)
     return artefacts
 
 

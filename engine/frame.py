@@ -10,6 +10,25 @@ import numpy as np
 from engine.contacts import ContactSet
 from engine.model import Model
 
+#: energies of a frame (J): what is stored, the work done on the blocks, what was dissipated
+STORED_ENERGIES = ("kinetic", "elastic", "contact")
+WORKS = ("gravity_work", "external_work")
+DISSIPATIONS = ("friction_dissipation", "numerical_dissipation", "damping_dissipation")
+#: every energy a frame carries, in the order of the result file
+ENERGY_NAMES = ("kinetic", "elastic", "contact", "gravity_work", "friction_dissipation",
+                "external_work", "numerical_dissipation", "damping_dissipation")
+
+
+def energy_created(energies: dict) -> float | np.ndarray:
+    """Energy the run created (J; scalars or series): stored + dissipated − work done.
+    Zero for an exact run; the balance is taken from the start (subtract its value at step
+    0 for a run that did not start at rest and unloaded). Missing terms count as zero."""
+    def total(names: tuple[str, ...]) -> float | np.ndarray:
+        return sum(np.nan_to_num(np.asarray(energies[n], float)) for n in names
+                   if n in energies)
+
+    return total(STORED_ENERGIES) + total(DISSIPATIONS) - total(WORKS)
+
 
 @dataclass
 class Frame:
@@ -22,8 +41,10 @@ class Frame:
     - `centroids (n, 3)` m; `affine (n, 3, 3)`; `rotation (n, 3)` rotation vector (rad)
     - `velocity (n, 12)`: translation, spin, strain rates (zeros for rigid blocks)
     - `stress (n, 6)` Pa, Voigt order σx σy σz τyz τzx τxy (zeros for rigid blocks)
-    - `energies`: J, keys `kinetic`, `elastic`, `contact`, `gravity_work`,
-      `friction_dissipation`, `external_work`
+    - `energies`: J, keys :data:`ENERGY_NAMES` (`kinetic`, `elastic` and `contact` stored;
+      `gravity_work`, `external_work` done on the blocks; `friction_dissipation`,
+      `numerical_dissipation` by the integrator's implicit springs and velocity reduction,
+      `damping_dissipation` by the contact dashpots)
     - `contacts` with `normal_force (c,)` N (compression positive) and
       `shear_force (c, 3)` N on block i
     """

@@ -86,21 +86,23 @@ class FixedPoint:
 class AnalysisControls:
     """How to run: time, penalties, iteration limits, block model.
 
-    `penalty` is the normal stiffness of one contact spring (N/m); the shear spring
-    is `shear_penalty_ratio * penalty`. `dynamic_ratio` is k01 (1 dynamic, 0 static).
+    `penalty` is the normal stiffness of one contact spring (N/m; None: derived from the
+    scene, :func:`engine.system.default_penalty`); the shear spring is
+    `shear_penalty_ratio * penalty`. `contact_damping` is each contact dashpot's fraction
+    of critical damping (0.5: a rock impact's restitution coefficient about 0.4).
+    `dynamic_ratio` is k01 (1 dynamic, 0 static).
     `max_displacement_ratio` limits the largest displacement in a step to this fraction
     of the model size (paper eq. 50 uses a fraction of the smallest edge instead);
     `max_penetration_ratio` limits a contact's penetration to this fraction of the
     thickness (2 V / A) of the thinner of its blocks: a deeper step is redone with a
     smaller Δt, so nothing tunnels. `open_close_tolerance` is the open-close
-    iteration's hysteresis as a fraction of the step displacement limit: an open contact
-    closes only when it penetrates deeper, so contacts that merely graze do not flip
-    forever (any tension still opens a closed contact).
+    iteration's hysteresis as a fraction of the step displacement limit (default 0: a
+    contact that penetrates carries its spring and friction; there is no force-free band).
     """
 
     duration: float = 1.0
     time_step: float = 1e-3
-    penalty: float = 1e10
+    penalty: float | None = None
     shear_penalty_ratio: float = 1.0
     record_interval: int = 10
     dynamic_ratio: float = 1.0
@@ -108,7 +110,8 @@ class AnalysisControls:
     max_displacement_ratio: float = 0.01
     max_penetration_ratio: float = 0.25
     max_open_close_iterations: int = 20
-    open_close_tolerance: float = 1e-4
+    open_close_tolerance: float = 0.0
+    contact_damping: float = 0.5
     min_time_step: float = 1e-7
     fixed_point_penalty: float | None = None
     record_contacts: bool = True

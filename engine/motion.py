@@ -4,13 +4,15 @@ contacts' memory for the next step)."""
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 
 from engine import assembly as asm
 from engine._motion_kernels import block_vertices, move_blocks
 from engine.contacts import LOCKED, OPEN
 from engine.geometry import Polyhedron
-from engine.state import ContactMemory, State, StepResult
+from engine.state import ContactMemory, Diagnostics, State, StepResult
 from engine.system import BlockSystem
 
 
@@ -26,6 +28,22 @@ def mass_properties(system: BlockSystem, state: State) -> tuple[np.ndarray, np.n
     second = det[:, None, None] * (a @ system.second0 @ np.transpose(a, (0, 2, 1)))
     state.cache["mass_properties"] = (vol, second)
     return vol, second
+
+
+def mass_matrices(system: BlockSystem, state: State) -> np.ndarray:
+    """Block mass matrices `(n, 12, 12)` of the state (computed once per state)."""
+    hit = state.cache.get("mass")
+    if hit is None:
+        vol, second = mass_properties(system, state)
+        hit = state.cache["mass"] = asm.mass_matrices(system.density, vol, second)
+    return hit
+
+
+def spring_energy(system: BlockSystem, res: StepResult) -> float:
+    """Energy (J) the contact springs hold at the end of the step `res`."""
+    closed = res.contacts.mode != OPEN
+    return (0.5 * system.kn * float(np.sum(res.gap1[closed] ** 2))
+            + 0.5 * system.ks * float(np.sum(res.shear ** 2)))
 
 
 def current_vertices(system: BlockSystem, state: State) -> np.ndarray:
@@ -70,6 +88,7 @@ def _work(system: BlockSystem, state: State, res: StepResult) -> dict[str, float
         e["external_work"] += float(f @ (t @ d[b]))
     e["friction_dissipation"] += res.friction_work
     e["numerical_dissipation"] += res.numerical_dissipation
+    e["damping_dissipation"] += res.damping_dissipation
     return e
 
 
@@ -92,30 +111,33 @@ def _memory(system: BlockSystem, res: StepResult) -> ContactMemory:
                          gap=res.gap1[keep])
 
 
-def _penetrations(system: BlockSystem, state: State, res: StepResult) -> np.ndarray:
+def _penetrations(system: BlockSystem, state: State, res: StepResult
+                  ) -> tuple[np.ndarray, Diagnostics]:
     """Each block's deepest contact penetration at the end of the step `(n,)` m (what the
-    next step's search must reach), and the run's deepest penetrations updated."""
+    next step's search must reach), and the diagnostics with the run's deepest
+    penetrations updated (a copy: the step may still be redone)."""
     cs, gap = res.contacts, res.gap1
     deepest = np.zeros(system.n)
     if len(gap):
         depth = np.maximum(-gap, 0.0)
         np.maximum.at(deepest, cs.block_i, depth)
         np.maximum.at(deepest, cs.block_j, depth)
-    diag = state.diagnostics
+    d = state.diagnostics
     closed = cs.mode != OPEN
-    diag.max_penetration = max(diag.max_penetration,
-                               float(np.max(-gap[closed], initial=0.0)))
+    pen, ratio = d.max_penetration, d.max_penetration_ratio
+    pen = max(pen, float(np.max(-gap[closed], initial=0.0)))
     if np.any(closed):
         thin = np.minimum(system.thickness[cs.block_i], system.thickness[cs.block_j])
-        ratio = float(np.max(-gap[closed] / thin[closed], initial=0.0))
-        diag.max_penetration_ratio = max(diag.max_penetration_ratio, ratio)
-    return deepest
+        ratio = max(ratio, float(np.max(-gap[closed] / thin[closed], initial=0.0)))
+    return deepest, dataclasses.replace(d, max_penetration=pen, max_penetration_ratio=ratio)
 
 
 def advance(system: BlockSystem, state: State, res: StepResult, dt: float) -> State:
     """The state after the converged step `res` of `dt` s: blocks moved with the exact
-    rotation, velocities `2 d / Δt − v0` (times the dynamic ratio), stresses, energies,
-    the contacts' memory and the time (`dt` and `last_dt` are the caller's)."""
+    rotation, velocities `2 d / Δt − v0` (times the dynamic ratio; the kinetic energy that
+    removes counts as the integrator's dissipation), stresses, energies, the contacts'
+    memory and the time (`dt` and `last_dt` are the caller's). The state `state` is left
+    as it was, so a step can be redone from it."""
     d = res.d
     centroid, affine, rotation = state.centroid.copy(), state.affine.copy(), \
         state.rotation.copy()
@@ -125,9 +147,16 @@ def advance(system: BlockSystem, state: State, res: StepResult, dt: float) -> St
     stress = state.stress
     if system.elastic:
         stress = stress + np.einsum("nij,nj->ni", system.emat, d[:, 6:])
-    return State(
-        centroid=centroid, affine=affine, rotation=rotation,
-        velocity=system.controls.dynamic_ratio * v1, stress=stress, time=state.time + dt,
-        step=state.step + 1, dt=state.dt, last_dt=state.last_dt, memory=_memory(system, res),
-        last_d=d, deepest=_penetrations(system, state, res),
-        energies=_work(system, state, res), diagnostics=state.diagnostics)
+    deepest, diagnostics = _penetrations(system, state, res)
+    after = State(
+        centroid=centroid, affine=affine, rotation=rotation, velocity=v1, stress=stress,
+        time=state.time + dt, step=state.step + 1, dt=state.dt, last_dt=state.last_dt,
+        memory=_memory(system, res), last_d=d, deepest=deepest,
+        energies=_work(system, state, res), contact_energy=spring_energy(system, res),
+        diagnostics=diagnostics)
+    ratio = system.controls.dynamic_ratio
+    if ratio != 1.0:
+        kinetic = 0.5 * float(np.einsum("ni,nij,nj->", v1, mass_matrices(system, after), v1))
+        after.energies["numerical_dissipation"] += (1.0 - ratio**2) * kinetic
+        after.velocity = ratio * v1
+    return after

@@ -8,13 +8,11 @@ from typing import Any
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from engine import assembly as asm
-from engine.block_terms import kinetic_energy
 from engine.contacts import OPEN
+from engine.energy import stored_energies
 from engine.frame import Frame
-from engine.motion import mass_properties
 from engine.state import State, StepResult
-from engine.system import BlockSystem
+from engine.system import BlockSystem, default_penalty
 
 #: a run whose contacts penetrated deeper than this fraction of the thinner block's
 #: thickness says so in its summary: the penalty is soft for the loads, and the motion
@@ -22,22 +20,10 @@ from engine.system import BlockSystem
 SOFT_PENALTY_WARNING_RATIO = 0.01
 
 
-def energies(system: BlockSystem, state: State, res: StepResult | None) -> dict[str, float]:
-    """Kinetic, elastic and contact-spring energies (J) of the state after the step `res`,
-    with the accumulated works and dissipations."""
-    vol, second = mass_properties(system, state)
-    mass = asm.mass_matrices(system.density, vol, second)
-    kinetic = kinetic_energy(state.velocity, mass)
-    contact = 0.0
-    if res is not None and len(res.contacts):
-        closed = res.contacts.mode != OPEN
-        contact = 0.5 * system.kn * float(np.sum(res.gap1[closed] ** 2))
-        contact += 0.5 * system.ks * float(np.sum(res.shear**2))
-    elastic = 0.0
-    if system.elastic:
-        comp = np.linalg.solve(system.emat, state.stress[:, :, None])[:, :, 0]
-        elastic = 0.5 * float(np.sum(vol * np.einsum("ij,ij->i", state.stress, comp)))
-    return {"kinetic": kinetic, "elastic": elastic, "contact": contact, **state.energies}
+def energies(system: BlockSystem, state: State) -> dict[str, float]:
+    """Kinetic, elastic and spring energies (J) of the state, with the accumulated works and
+    dissipations."""
+    return {**stored_energies(system, state), **state.energies}
 
 
 def frame(system: BlockSystem, state: State, res: StepResult | None) -> Frame:
@@ -50,7 +36,7 @@ def frame(system: BlockSystem, state: State, res: StepResult | None) -> Frame:
         if res is not None and len(res.contacts) else 0.0,
         centroids=state.centroid.copy(), affine=state.affine.copy(), rotation=rv,
         velocity=state.velocity.copy(), stress=state.stress.copy(),
-        energies=energies(system, state, res),
+        energies=energies(system, state),
     )
     if res is not None and system.controls.record_contacts:
         f.contacts = res.contacts
@@ -60,15 +46,20 @@ def frame(system: BlockSystem, state: State, res: StepResult | None) -> Frame:
 
 
 def warnings(system: BlockSystem, state: State) -> list[str]:
-    """What the user should know about a run that did complete (soft penalty...)."""
+    """What the user should know about a run that did complete (soft penalty...), with
+    advice that helps: raise the penalty only where it is below the scene's default;
+    otherwise the steps are too long for the speeds reached."""
     out = []
     d = state.diagnostics
     if d.max_penetration_ratio > SOFT_PENALTY_WARNING_RATIO:
+        suggested = default_penalty(system.model)
+        advice = (f"set analysis.penalty to the scene's default {suggested:.3g} N/m "
+                  "(or leave it out)" if system.kn < suggested else
+                  "the penalty is not below the scene's default: reduce analysis.time_step")
         out.append(
             f"contacts penetrated up to {d.max_penetration:.3g} m "
-            f"({d.max_penetration_ratio:.1%} of the thinner block): the penalty "
-            f"{system.kn:.3g} N/m is soft for these loads and displacements carry an "
-            "error of that order; raise analysis.penalty")
+            f"({d.max_penetration_ratio:.1%} of the thinner block) with the penalty "
+            f"{system.kn:.3g} N/m, and displacements carry an error of that order; {advice}")
     return out
 
 
@@ -88,7 +79,13 @@ def summary(system: BlockSystem, state: State, status: str, message: str,
     return {
         "status": status, "message": message, "steps": state.step,
         "simulated_time": state.time, "wall_time": wall,
+        "penalty": {"normal": system.kn, "shear": system.ks,
+                    "derived": system.controls.penalty is None},
         "max_penetration": d.max_penetration, "warnings": warnings(system, state),
         "blocks": blocks, "timings": dict(d.timings),
         "relaxed_contacts": d.relaxed_contacts, "time_step_cuts": dict(d.cuts),
+        "initial_overlap": {"largest": d.initial_overlap, "contacts": d.initial_overlaps},
+        "energy": {"created": d.max_energy_created, "scale": d.energy_scale,
+                   "created_ratio": d.max_energy_created / d.energy_scale
+                   if d.energy_scale > 0 else 0.0},
     }

@@ -16,6 +16,7 @@ from matplotlib.colors import Normalize
 from matplotlib.figure import Figure
 from mpl_toolkits.mplot3d.art3d import Poly3DCollection
 
+from engine.frame import energy_created
 from engine.results import Result, open_result
 
 PathLike = str | os.PathLike[str]
@@ -25,6 +26,7 @@ ENERGY_LABELS = {
     "gravity_work": "work of gravity", "external_work": "work of loads",
     "friction_dissipation": "friction dissipation",
     "numerical_dissipation": "dissipated by the DDA integrator",
+    "damping_dissipation": "dissipated by contact damping",
 }
 MAX_HISTORY_BLOCKS = 8
 
@@ -83,23 +85,13 @@ def plot_histories(result: Result | PathLike, path: PathLike,
 
 
 def energy_residual(energies: dict[str, np.ndarray]) -> np.ndarray:
-    """Energy balance residual `(K,)` J: stored-energy change minus net work since step 0.
-
-    `Δ(kinetic + elastic + contact) - Δ(gravity_work + external_work - friction_dissipation
-    - numerical_dissipation)`;
-    terms that are missing or NaN count as zero.
-    """
-    def term(name: str) -> np.ndarray:
-        e = energies.get(name)
-        if e is None or len(e) == 0:
-            return np.zeros(len(next(iter(energies.values()), [])))
-        e = np.nan_to_num(np.asarray(e, float))
-        return e - e[0]
-
-    stored = term("kinetic") + term("elastic") + term("contact")
-    work = (term("gravity_work") + term("external_work") - term("friction_dissipation")
-            - term("numerical_dissipation"))
-    return stored - work
+    """Energy balance residual `(K,)` J since step 0: the energy the run created
+    (:func:`engine.frame.energy_created`: stored + dissipated − work); terms that are
+    missing or NaN count as zero."""
+    created = np.asarray(energy_created(energies), float)
+    if created.ndim == 0:
+        return np.zeros(len(next(iter(energies.values()), [])))
+    return created - created[0]
 
 
 def plot_energy(result: Result | PathLike, path: PathLike) -> Path:

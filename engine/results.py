@@ -50,7 +50,7 @@ import h5py
 import numpy as np
 
 from engine._motion_kernels import block_vertices, point_motions
-from engine.frame import Frame
+from engine.frame import ENERGY_NAMES, Frame
 from engine.model import Model
 
 log = logging.getLogger(__name__)
@@ -59,10 +59,6 @@ FORMAT = "polydda-result"
 FORMAT_VERSION = 1
 VTKHDF_VERSION = (2, 2)
 STATUSES = ("completed", "failed", "cancelled", "stopped")
-ENERGY_NAMES = (
-    "kinetic", "elastic", "contact", "gravity_work", "friction_dissipation", "external_work",
-    "numerical_dissipation",
-)
 #: HDF5 file-format bounds: 1.10 is the oldest that has SWMR; ParaView >= 5.x reads it
 LIBVER = ("v110", "v110")
 #: Chunking policy. HDF5 in SWMR mode does not reuse freed file space, so a compressed chunk

@@ -2,12 +2,12 @@
 
 A step is the paper's pipeline (THEORY.md "One step"): find contacts → initial modes (Table
 1, inherited modes) → open-close iteration (Table 2) → checks (displacement limit,
-penetration) → advance (exact rotation) → record. Each stage is a module of its own:
-:mod:`engine.contact_step`, :mod:`engine.open_close`, :mod:`engine.stepping`,
-:mod:`engine.motion`, :mod:`engine.output`. When an attempt fails, Δt is cut and the step
-redone; below the smallest allowed time step the run stops with a clear status and keeps
-what was recorded. Constants live in a :class:`BlockSystem`, everything that changes in a
-:class:`State`, so a run can be checkpointed and resumed.
+penetration) → advance (exact rotation) → energy watchdog → record. Each stage is a module
+of its own: :mod:`engine.contact_step`, :mod:`engine.open_close`, :mod:`engine.stepping`,
+:mod:`engine.motion`, :mod:`engine.energy`, :mod:`engine.output`. When an attempt fails,
+Δt is cut and the step redone; below the smallest allowed time step the run stops with a
+clear status and keeps what was recorded. Constants live in a :class:`BlockSystem`,
+everything that changes in a :class:`State`, so a run can be checkpointed and resumed.
 """
 
 from __future__ import annotations
@@ -20,7 +20,7 @@ from typing import Any
 
 import numpy as np
 
-from engine import output, stepping
+from engine import energy, output, stepping
 from engine.contact_step import find_contacts
 from engine.frame import Frame, Recorder
 from engine.model import Model
@@ -88,14 +88,16 @@ class Simulation:
                 start = initial_modes(system, state, contacts, attempt.dt)
                 res = open_close_iteration(system, state, contacts, areas, start, attempt.dt)
                 stepping.check(system, res, attempt)
+                clock = _time.perf_counter()
+                after = advance(system, state, res, attempt.dt)
+                energy.check_step(system, state, after)
                 break
             except stepping.SearchWider:
                 contacts, areas = find_contacts(system, state,
                                                 stepping.reach(system, state, attempt))
             except StepFailure as exc:
                 attempt = stepping.cut(system, state, attempt, exc)
-        clock = _time.perf_counter()
-        self.state = advance(system, state, res, attempt.dt)
+        self.state = after
         self.state.dt = stepping.next_time_step(system, state, res, attempt.dt)
         self.state.last_dt = attempt.dt
         self.state.diagnostics.tick("update", clock)
@@ -152,6 +154,10 @@ def run(
             if not (np.all(np.isfinite(s.centroid)) and np.all(np.isfinite(s.velocity))):
                 status = STATUS_FAILED
                 message = f"non-finite state at step {s.step}; stopped"
+                break
+            message = energy.check_run(sim.system, s)
+            if message:
+                status = STATUS_FAILED
                 break
             last = s.time >= c.duration - eps
             if recorder is not None and (s.step % c.record_interval == 0 or last):

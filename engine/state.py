@@ -7,6 +7,7 @@ A run can be saved and resumed from its :class:`State` alone (:func:`save_state`
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import os
 import time as _time
@@ -61,21 +62,30 @@ class ContactMemory:
 
 def _zero_energies() -> dict[str, float]:
     return {"gravity_work": 0.0, "external_work": 0.0, "friction_dissipation": 0.0,
-            "numerical_dissipation": 0.0}
+            "numerical_dissipation": 0.0, "damping_dissipation": 0.0}
 
 
 @dataclass
 class Diagnostics:
-    """What a run observed about itself (not physics): deepest penetration (m) and its
-    ratio to the thinner block's thickness, contacts found implausibly deep and relaxed,
-    the Δt cuts by reason, and wall time (s) per phase (detection, assembly, solve,
-    open_close, update, output)."""
+    """What a run observed about itself: deepest penetration (m) and its ratio to the
+    thinner block's thickness, contacts found implausibly deep and relaxed, the Δt cuts by
+    reason, wall time (s) per phase (detection, assembly, solve, open_close, update,
+    output), the blocks' initial overlaps and the energy balance."""
 
     max_penetration: float = 0.0
     max_penetration_ratio: float = 0.0
     relaxed_contacts: int = 0
     cuts: dict[str, int] = field(default_factory=dict)
     timings: dict[str, float] = field(default_factory=dict)
+    #: deepest overlap of the blocks as given (m; their springs start unstretched) and how
+    #: many contacts had one
+    initial_overlap: float = 0.0
+    initial_overlaps: int = 0
+    #: energy the run has created (J; stored + dissipated − work), its largest value so far,
+    #: and the run's energy scale (J; the largest of the work done and the energy stored)
+    energy_created: float = 0.0
+    max_energy_created: float = 0.0
+    energy_scale: float = 0.0
 
     def tick(self, phase: str, since: float) -> float:
         """Add the wall time since `since` (perf_counter) to `phase`; return now."""
@@ -109,6 +119,8 @@ class State:
     last_d: np.ndarray | None = None
     deepest: np.ndarray | None = None
     energies: dict[str, float] = field(default_factory=_zero_energies)
+    #: J held by the contact springs at the end of the last step
+    contact_energy: float = 0.0
     diagnostics: Diagnostics = field(default_factory=Diagnostics)
     #: values derived from this state, computed once (not saved)
     cache: dict[str, Any] = field(default_factory=dict, repr=False, compare=False)
@@ -136,6 +148,7 @@ class StepResult:
     iterations: int
     mode_changes: int = 0
     numerical_dissipation: float = 0.0
+    damping_dissipation: float = 0.0
     broken: np.ndarray | None = None
 
 
@@ -148,18 +161,15 @@ def initial_state(centroid: np.ndarray, velocity: np.ndarray, dt: float) -> Stat
 
 
 _ARRAYS = ("centroid", "affine", "rotation", "velocity", "stress", "last_d", "deepest")
-_SCALARS = ("time", "step", "dt", "last_dt")
+_SCALARS = ("time", "step", "dt", "last_dt", "contact_energy")
 
 
 def save_state(state: State, path: str | os.PathLike[str]) -> None:
     """Write `state` to `path` (a `.npz` file of plain arrays; floats kept bit for bit)."""
     arrays = {name: getattr(state, name) for name in _ARRAYS if getattr(state, name) is not None}
     arrays.update({f"memory_{name}": getattr(state.memory, name) for name in _MEMORY_FIELDS})
-    d = state.diagnostics
     meta = {name: getattr(state, name) for name in _SCALARS}
-    meta.update(energies=state.energies, max_penetration=d.max_penetration,
-                max_penetration_ratio=d.max_penetration_ratio,
-                relaxed_contacts=d.relaxed_contacts, cuts=d.cuts, timings=d.timings)
+    meta.update(energies=state.energies, diagnostics=dataclasses.asdict(state.diagnostics))
     with open(path, "wb") as fh:  # np.savez would add ".npz" to a name without it
         np.savez(fh, meta=np.array(json.dumps(meta)), **arrays)
 
@@ -170,7 +180,6 @@ def load_state(path: str | os.PathLike[str]) -> State:
         meta = json.loads(str(z["meta"]))
         arrays = {name: z[name] if name in z.files else None for name in _ARRAYS}
         memory = ContactMemory(**{name: z[f"memory_{name}"] for name in _MEMORY_FIELDS})
-    diagnostics = Diagnostics(meta["max_penetration"], meta["max_penetration_ratio"],
-                              meta["relaxed_contacts"], meta["cuts"], meta["timings"])
+    diagnostics = Diagnostics(**meta["diagnostics"])
     return State(**arrays, **{name: meta[name] for name in _SCALARS}, memory=memory,
                  energies=meta["energies"], diagnostics=diagnostics)

@@ -33,7 +33,9 @@ class BlockSystem:
     - `touch_gap` m: closer blocks touch; `open_close_gap` m: the open-close hysteresis
     - `tan_phi`, `cohesion` (Pa), `tension` (Pa) per joint material
     - `loads`: (block, point m, force N) per point load; `fixed_points`: (block, point m)
-    - `energy_floor` J: energy differences below it are round-off
+    - `energy_floor` J: spring energies below it are round-off; `energy_round_off` J: the
+      energy balance's round-off (1e-10 of the free blocks' potential energy over the
+      model's size)
     - `adaptive_search`: search each step within its own predicted limit
     """
 
@@ -72,6 +74,7 @@ class BlockSystem:
     fixed_points: tuple[tuple[int, np.ndarray], ...]
     gravity: np.ndarray
     energy_floor: float
+    energy_round_off: float
     adaptive_search: bool = True
 
     @property
@@ -102,6 +105,30 @@ def _stacked_vertices(polys: list[Polyhedron], c0: np.ndarray
     return block, start, rel0
 
 
+#: the default penalty makes a contact spring this many times stiffer than the inertia a
+#: typical block opposes to a step's motion (2 m / Δt², the mass term of the step's
+#: equations): contacts then act as constraints within a step instead of cushions
+PENALTY_INERTIA_RATIO = 10.0
+
+
+def default_penalty(model: Model) -> float:
+    """The scene's contact penalty (N/m) when the user gives none: the larger of the rock's
+    own stiffness at block size, E L (E the stiffest movable material, L the median movable
+    block's size V^⅓), and PENALTY_INERTIA_RATIO × 2 m / Δt² (m the median movable block's
+    mass, Δt the asked time step); rounded to one significant figure."""
+    free = [b for b in model.blocks if not b.fixed] or list(model.blocks)
+    if not free:
+        return 1e10
+    volume = np.array([b.polyhedron.volume for b in free])
+    mass = volume * np.array([model.materials[b.material].density for b in free])
+    young = max(model.materials[b.material].young_modulus for b in free)
+    dt = model.controls.time_step
+    k = max(young * float(np.median(volume)) ** (1 / 3),
+            PENALTY_INERTIA_RATIO * 2.0 * float(np.median(mass)) / dt**2)
+    lead = 10.0 ** np.floor(np.log10(k))
+    return float(np.round(k / lead) * lead)
+
+
 def build_system(model: Model, adaptive_search: bool = True) -> BlockSystem:
     """The :class:`BlockSystem` of `model`."""
     c = model.controls
@@ -117,7 +144,7 @@ def build_system(model: Model, adaptive_search: bool = True) -> BlockSystem:
     mats = [model.materials[b.material] for b in blocks]
     density = np.array([m.density for m in mats])
     volume0 = np.array([p.volume for p in polys])
-    kn = float(c.penalty)
+    kn = float(c.penalty) if c.penalty is not None else default_penalty(model)
     scale = model.scale
     # thin blocks, fixed or not, bound the step so nothing tunnels through them: no
     # point moves more than half the width of the thinnest block in a step
@@ -133,8 +160,8 @@ def build_system(model: Model, adaptive_search: bool = True) -> BlockSystem:
         n_unknowns=n_unknowns, block_row=np.where(fixed, -1, dof_map[:, 0] // ndof),
         emat=np.array([asm.elastic_matrix(m.young_modulus, m.poisson_ratio)
                        for m in mats]).reshape(n, 6, 6),
-        kn=kn, ks=float(c.penalty * c.shear_penalty_ratio),
-        kf=float(c.fixed_point_penalty or 10.0 * c.penalty), scale=scale,
+        kn=kn, ks=kn * float(c.shear_penalty_ratio),
+        kf=float(c.fixed_point_penalty or 10.0 * kn), scale=scale,
         thickness=np.array([2.0 * p.volume / max(p.face_areas.sum(), 1e-300) for p in polys]),
         radius=np.array([np.linalg.norm(p.vertices[p.surface_vertex_ids] - p.centroid,
                                         axis=1).max() for p in polys]),
@@ -154,5 +181,7 @@ def build_system(model: Model, adaptive_search: bool = True) -> BlockSystem:
         energy_floor=1e-6 * max(
             float(np.sum((density * volume0)[~fixed])) * float(np.linalg.norm(model.gravity))
             * scale, 0.5 * kn * max_step**2),
+        energy_round_off=1e-10 * float(np.sum((density * volume0)[~fixed]))
+        * float(np.linalg.norm(model.gravity)) * scale,
         adaptive_search=adaptive_search,
     )

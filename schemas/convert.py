@@ -532,6 +532,7 @@ def build_model(scene: Scene | str | Path | dict[str, Any]) -> BuildResult:
         max_penetration_ratio=a.max_penetration_ratio,
         max_open_close_iterations=a.max_open_close_iterations,
         open_close_tolerance=a.open_close_tolerance,
+        contact_damping=a.contact_damping,
         min_time_step=a.min_time_step,
         fixed_point_penalty=a.fixed_point_penalty,
         record_contacts=a.record_contacts,

@@ -356,8 +356,11 @@ class AnalysisSpec(_Model):
     time_step: Positive = Field(_CONTROLS.time_step, description="s, initial time step")
     min_time_step: Positive = Field(_CONTROLS.min_time_step,
                                     description="s; the run stops below this")
-    penalty: Positive = Field(_CONTROLS.penalty,
-                              description="N/m, normal stiffness of one contact spring")
+    penalty: Positive | None = Field(
+        _CONTROLS.penalty,
+        description="N/m, normal stiffness of one contact spring; default: derived from the "
+                    "scene, the larger of E·L (stiffest rock, median block size) and 10 × "
+                    "2 m/Δt² (median block mass, time_step), so contacts act as constraints")
     shear_penalty_ratio: Positive = Field(_CONTROLS.shear_penalty_ratio,
                                           description="shear / normal spring stiffness")
     fixed_point_penalty: Positive | None = Field(None, description="N/m (default: engine's)")
@@ -386,10 +389,16 @@ class AnalysisSpec(_Model):
     )
     open_close_tolerance: Annotated[float, Field(ge=0, le=0.1)] = Field(
         _CONTROLS.open_close_tolerance,
-        description="open-close hysteresis / largest displacement in a step: an open "
-                          "contact closes only when it penetrates deeper than this (any "
-                          "tension opens a closed one)"
+        description="open-close hysteresis / largest displacement in a step (default 0: "
+                    "none; a band lets contacts penetrate without force): an open "
+                    "contact closes only when it penetrates deeper than this (any "
+                    "tension opens a closed one)"
     )
+    contact_damping: Annotated[float, Field(ge=0, le=2)] = Field(
+        _CONTROLS.contact_damping,
+        description="fraction of critical damping of each contact's springs (dashpots "
+                    "in compression and in locked shear): impacts and rocking settle "
+                    "instead of ringing on the penalty springs; 0 turns them off")
     record_contacts: bool = _CONTROLS.record_contacts
     factor_of_safety: FactorOfSafetySpec | None = None
 

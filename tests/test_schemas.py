@@ -54,7 +54,11 @@ def test_defaults_serve_a_small_scene(cube_on_base: dict) -> None:
     assert (jm.cohesion, jm.tensile_strength) == (0.0, 0.0)
     assert m.gravity.tolist() == [0.0, 0.0, -9.81]
     c = m.controls
-    assert (c.duration, c.time_step, c.penalty, c.dynamic_ratio) == (1.0, 1e-3, 1e10, 1.0)
+    assert (c.duration, c.time_step, c.penalty, c.dynamic_ratio) == (1.0, 1e-3, None, 1.0)
+    from engine.system import default_penalty
+
+    assert default_penalty(m) == 5e10  # the 1 m cube: 10 × 2 × 2600 kg / (1 ms)²
+    assert c.contact_damping == 0.5
     assert c.block_model == "rigid" and c.record_contacts
     assert result.block_names == ["cube", "base"]
     assert [b.fixed for b in m.blocks] == [False, True]
@@ -554,8 +558,10 @@ def test_every_example_loads_and_builds(built: dict[str, Any]) -> None:
     assert set(built) >= {"wedge", "block_system", "incline", "free_fall", "pushed_block",
                           "stack", "toppling"}
     for name, result in built.items():
-        # the jointed cube's cut merges slivers and says so; nothing else may warn
-        notes = [w for w in result.warnings if "merged into" not in w]
+        # cut rock masses merge slivers and say so; the user-style slope's bedding set has
+        # planes that miss the slope (its warning tells the user); nothing else may warn
+        notes = [w for w in result.warnings if "merged into" not in w
+                 and not (name == "jointed_slope" and "cut nothing" in w)]
         assert not notes, (name, result.warnings)
         assert any(b.fixed for b in result.model.blocks), name
         assert not all(b.fixed for b in result.model.blocks), name

@@ -7,6 +7,7 @@ import pytest
 
 from engine import contact_step, stepping
 from engine.contacts import OPEN
+from engine.frame import energy_created
 from engine.model import (
     AnalysisControls,
     Block,
@@ -108,13 +109,19 @@ def test_block_on_incline_does_not_creep() -> None:
     assert abs(s[-1] - s[k1]) < 0.1 * spring  # no growth from step to step
 
 
-def _fall_model(kn: float, duration: float, dt: float = 1e-3) -> Model:
+def _fall_model(kn: float, duration: float, dt: float = 1e-3, damping: float = 0.5) -> Model:
     base = box([-2, -2, -1], [3, 3, 0])
     cube = box([0, 0, 1], [1, 1, 2])
     return Model(
         blocks=[Block(base, "base", fixed=True), Block(cube, "cube")],
         joint_materials=[JointMaterial(np.radians(30))],
-        controls=AnalysisControls(duration=duration, time_step=dt, penalty=kn, record_interval=1),
+        controls=AnalysisControls(
+            duration=duration,
+            time_step=dt,
+            penalty=kn,
+            record_interval=1,
+            contact_damping=damping,
+        ),
     )
 
 
@@ -132,7 +139,7 @@ def test_impact_settles_to_static_penetration_within_energy_bound() -> None:
     """Case 4: after settling, penetration W/K within 1 %, KE ~ 0, max penetration bounded."""
     kn = 1e9
     log = FrameLog()
-    res = run(_fall_model(kn, 2.0), recorder=log)
+    res = run(_fall_model(kn, 2.0, damping=0.0), recorder=log)
     assert res.status == STATUS_COMPLETED
     k_total = 4 * kn
     final_pen = -(log.frames[-1].centroids[1, 2] - 0.5)
@@ -145,6 +152,32 @@ def test_impact_settles_to_static_penetration_within_energy_bound() -> None:
     t, c = log.series(1)
     after = t > 0.46
     assert c[after, 2].max() - 0.5 < 1.0  # rebound apex below the drop height
+
+
+def test_contact_damping_settles_the_bouncing_impact() -> None:
+    """Case 4 at Δt 1e-4, k_n 1e10: undamped it still bounces at 2 s (apex 0.551 m); the
+    default contact dashpot (ζ 0.5) brings it to rest at W/K within the energy bound."""
+    kn = 1e10
+    log = FrameLog()
+    res = run(_fall_model(kn, 2.0, dt=1e-4), recorder=log)
+    assert res.status == STATUS_COMPLETED
+    k_total = 4 * kn
+    bound = (W + np.sqrt(W**2 + 2 * k_total * W * 1.0)) / k_total
+    assert res.max_penetration <= bound
+    final_pen = -(log.frames[-1].centroids[1, 2] - 0.5)
+    assert final_pen == pytest.approx(W / k_total, rel=0.01)
+    assert log.frames[-1].energies["kinetic"] < 1e-6 * W * 1.0
+    t, c = log.series(1)
+    # the dashpot acts at least while the contact closes: the rebound apex is at most
+    # e² h₀ of a spring-dashpot damped only in compression (e² = 0.298 at ζ 0.5), far below
+    # the undamped 0.551 m of this Δt (Δt-converged e² ≈ 0.17 at ζ 0.5, 0.37 at ζ 0.2)
+    zeta = AnalysisControls().contact_damping
+    wd = np.sqrt(1 - zeta**2)
+    theta = np.arctan(wd / zeta)
+    e2 = (np.exp(-zeta * theta / wd) * np.sin(theta) / wd) ** 2
+    apex = c[t > 0.46, 2].max() - 0.5
+    assert apex < e2 * 1.0
+    assert apex < 0.5 * 0.551  # VALIDATION.md case 4: the undamped apex at this k_n, Δt
 
 
 def test_fast_block_does_not_tunnel_through_thin_plate() -> None:
@@ -298,9 +331,7 @@ def test_hexahedron_builder_is_valid() -> None:
 def _balance(frame) -> tuple[float, float]:
     e = frame.energies
     work = e["gravity_work"] + e["external_work"]
-    accounted = (e["kinetic"] + e["contact"] + e["elastic"] + e["friction_dissipation"]
-                 + e["numerical_dissipation"])
-    return work, accounted
+    return work, work + energy_created(e)
 
 
 @pytest.mark.parametrize("case", ["free_fall_settled", "incline_sliding"])
@@ -314,8 +345,9 @@ def test_energy_is_accounted_for(case: str) -> None:
     assert work > 0
     assert accounted == pytest.approx(work, rel=1e-3)
     if case == "free_fall_settled":
-        # the impact's energy went into the integrator's dissipation, not into motion
-        assert log.frames[-1].energies["numerical_dissipation"] > 0.9 * work
+        # the impact's energy went into the integrator and the dashpots, not into motion
+        e = log.frames[-1].energies
+        assert e["numerical_dissipation"] + e["damping_dissipation"] > 0.9 * work
 
 
 @pytest.mark.parametrize(("cohesion", "holds"), [(12000.0, True), (3000.0, False)])
@@ -385,7 +417,9 @@ def test_cut_rock_mass_keeps_its_time_step(friction_deg: float) -> None:
     if friction_deg > 45:
         assert sim.state.time == pytest.approx(0.02, rel=1e-9)
         assert np.linalg.norm(sim.state.centroid - sim.system.c0, axis=1).max() < 1e-3
-        assert sim.state.diagnostics.relaxed_contacts == 0
+        # no spring started with energy it never stored (contacts re-detected deeper than
+        # they ended start where they ended: counted in relaxed_contacts, not asserted)
+        assert sim.state.diagnostics.max_energy_created <= sim.system.energy_round_off
     else:
         assert sim.state.time >= 0.01
     assert sim.state.diagnostics.max_penetration < 1e-3
@@ -393,7 +427,9 @@ def test_cut_rock_mass_keeps_its_time_step(friction_deg: float) -> None:
 
 @pytest.mark.parametrize(("case", "dt", "penalty"), [
     ("vertex_vertex", 0.01, 1e10),   # a contact held closed in tension threw the cube
-    ("vertex_vertex", 1e-3, 1e8),    # re-detection on another plane started a deeper spring
+    # re-detection on another plane started a deeper spring; with the damped contact law
+    # its soft (1e8 N/m) springs end a step in tension at 0.81 s: it stops, saying so
+    pytest.param("vertex_vertex", 1e-3, 1e8, id="vertex_vertex-soft-fails-clearly"),
     ("slide_off", 0.05, 1e10),       # a contact held closed in tension kept it on the edge
     # capped sliding contacts slipping back against their friction fed energy to the pile
     pytest.param("pile100", 0.01, 1e10, marks=[pytest.mark.slow, pytest.mark.ci]),
@@ -406,7 +442,11 @@ def test_stability_cases_that_used_to_end_wrong(case: str, dt: float, penalty: f
     from benchmarks.stability import STAB_CASES, run_one
 
     row = run_one(STAB_CASES[case], dt, penalty, "regression")
-    assert row["verdict"] == "pass", row["detail"]
+    if penalty < 1e9:
+        assert row["verdict"] == "failed (clear status)", row["detail"]
+        assert "never stored" in row["message"]
+    else:
+        assert row["verdict"] == "pass", row["detail"]
     assert row["energy_growth"] < 0.01
 
 
@@ -417,8 +457,23 @@ def test_soft_penalty_is_reported_not_silent() -> None:
     assert soft.status == STATUS_COMPLETED
     assert len(soft.summary["warnings"]) == 1
     assert "penalty" in soft.summary["warnings"][0]
+    # the advice is the scene's own default (E L = 1e10 N/m at this Δt), not "raise it"
+    assert "set analysis.penalty to the scene's default 1e+10 N/m" in soft.summary["warnings"][0]
     stiff = run(incline_model(20.0, duration=0.3, dt=0.01))
     assert stiff.summary["warnings"] == []
+
+
+def test_default_penalty_is_derived_from_the_scene() -> None:
+    """No penalty given: max(E L, 10 × 2 m / Δt²) of the median block, to one figure."""
+    from engine.system import build_system, default_penalty
+
+    m = incline_model(35.0, dt=1e-3, penalty=None)  # 2600 kg cube: 10 × 2 × 2600 / 1e-6
+    assert default_penalty(m) == pytest.approx(5e10)
+    assert build_system(m).kn == pytest.approx(5e10)
+    m = incline_model(35.0, dt=1e-1, penalty=None)  # E L = 1e10 Pa × 1 m wins at long steps
+    assert default_penalty(m) == pytest.approx(1e10)
+    res = run(incline_model(35.0, duration=0.3, dt=1e-3, penalty=None))
+    assert res.summary["penalty"] == {"normal": 5e10, "shear": 5e10, "derived": True}
 
 
 
@@ -500,7 +555,8 @@ def test_fast_block_widens_only_its_own_search_and_pushes_a_resting_one(
     assert len(searches) > adaptive.state.step - 1  # the throw was searched again
 
 
-def _pendulum(dt: float, omega0: float = 0.1) -> tuple[FrameLog, np.ndarray]:
+def _pendulum(dt: float, omega0: float = 0.1, completes: bool = True
+              ) -> tuple[FrameLog, np.ndarray]:
     """A 1 m cube held by a fixed point at the centre of its top face, set swinging about
     x at `omega0` rad/s, 2 s; the recorded frames and the pin."""
     pin = np.array([0.5, 0.5, 1.0])
@@ -511,7 +567,11 @@ def _pendulum(dt: float, omega0: float = 0.1) -> tuple[FrameLog, np.ndarray]:
         controls=AnalysisControls(duration=2.0, time_step=dt, record_interval=1))
     log = FrameLog()
     res = run(model, recorder=log)
-    assert res.status == STATUS_COMPLETED, res.message
+    if completes:
+        assert res.status == STATUS_COMPLETED, res.message
+    else:
+        assert res.status == STATUS_FAILED
+        assert "created" in res.message and "energy" in res.message
     return log, pin
 
 
@@ -520,11 +580,14 @@ def test_cube_pinned_at_a_point_swings_as_a_compound_pendulum() -> None:
     period is 2π √(5 / (12 g L)) = 1.8313 s and the amplitude ω₀ / ω. The pin stays put
     to the penalty spring's stretch W / k_f. Within a step DDA moves blocks by the
     linearized rotation, so the pin drifts by ½ (ω Δt)² L per step and the amplitude
-    carries an O(Δt) error: 0.4 % at Δt = 1 ms, halving with Δt."""
+    carries an O(Δt) error: 0.4 % at Δt = 1 ms, halving with Δt. That error is energy the
+    integrator creates (the pin spring stretched by the drift against the weight): at 2 ms
+    it passes 0.5 % of the swing's energy within 0.3 s, and the run fails saying so."""
     omega0 = 0.1
     omega = np.sqrt(G * 0.5 / (5.0 / 12.0))
+    _pendulum(2e-3, omega0, completes=False)
     errors = []
-    for dt in (2e-3, 1e-3):
+    for dt in (3e-4, 1.5e-4):
         log, pin = _pendulum(dt, omega0)
         t, rot = log.series(0, "rotation")
         theta = rot[:, 0]
