@@ -12,7 +12,7 @@ from fastapi.responses import JSONResponse, Response
 from pydantic import BaseModel
 from starlette.exceptions import HTTPException as StarletteHTTPException
 from starlette.requests import ClientDisconnect
-from starlette.routing import Match
+from starlette.routing import Mount
 
 log = logging.getLogger("service.api")
 
@@ -85,24 +85,27 @@ def problem_responses(*codes: int) -> dict[int | str, dict[str, Any]]:
     return {c: {"description": TITLES[c], "content": {PROBLEM_JSON: ref}} for c in codes}
 
 
+def _route_methods(routes: list[Any], path: str) -> set[str]:
+    """Methods of the routes (walking into included routers and mounts) that serve `path`."""
+    methods: set[str] = set()
+    for route in routes:
+        included = getattr(route, "original_router", None)
+        if included is not None:  # FastAPI keeps an included router as one route
+            methods |= _route_methods(included.routes, path)
+        elif getattr(route, "methods", None):
+            if route.path_regex.match(path):
+                methods |= set(route.methods)
+        elif isinstance(route, Mount) and path.startswith(route.path.rstrip("/") + "/"):
+            methods |= {"GET", "HEAD"}  # static files
+    return methods
+
+
 def allowed_methods(request: Request) -> list[str]:
     """Every method some route serves at the request's path (for 405's Allow header)."""
-    methods: set[str] = set()
-    scope = {**request.scope, "method": "GET"}
-    for route in request.app.router.routes:
-        match, _ = route.matches(scope)
-        if match == Match.NONE:
-            continue
-        route_methods = getattr(route, "methods", None)
-        if route_methods:
-            methods |= set(route_methods)
-        elif hasattr(route, "app"):  # a mount (static files): what it serves
-            methods |= {"GET", "HEAD"}
-    for route in request.app.router.routes:  # the methods of routes at this path
-        path_match = getattr(route, "path_regex", None)
-        if path_match is not None and path_match.match(request.url.path):
-            methods |= set(getattr(route, "methods", None) or ())
-    return sorted(methods)
+    scope = request.scope  # a mount changes root_path; app_root_path is the app's own
+    root = str(scope.get("app_root_path", scope.get("root_path", ""))).rstrip("/")
+    path = request.url.path.removeprefix(root) or "/"
+    return sorted(_route_methods(request.app.router.routes, path))
 
 
 def install_handlers(app: FastAPI) -> None:
