@@ -14,7 +14,8 @@ import numpy as np
 import scipy.sparse.linalg as spla
 
 from engine import assembly as asm
-from engine.contacts import LOCKED
+from engine.block_terms import block_terms
+from engine.contact_step import detect
 from engine.model import AnalysisControls, Block, JointMaterial, Model
 from engine.shapes import box
 from engine.simulation import Simulation
@@ -35,17 +36,17 @@ def grid_model(n: int) -> Model:
 def system(n: int):
     """K `(N, N)` and F `(N,)` of the first cycle with every contact locked."""
     sim = Simulation(grid_model(n))
-    cs = sim.detect()
-    kb, fb, _ = sim.block_terms(1e-3)
-    s = sim.state
+    sys_, s = sim.system, sim.state
+    cs = detect(sys_, s)
+    kb, fb, _ = block_terms(sys_, s, 1e-3)
     ti = asm.displacement_matrices(cs.point_i, s.centroid[cs.block_i])
     tj = asm.displacement_matrices(cs.point_j, s.centroid[cs.block_j])
-    kn = np.full(len(cs), sim.kn)
-    ks = np.where(cs.mode == LOCKED, sim.ks, sim.ks)
-    plan = asm.plan_system(sim.block_row, kb, cs.block_i, cs.block_j,
+    kn = np.full(len(cs), sys_.kn)
+    ks = np.full(len(cs), sys_.ks)
+    plan = asm.plan_system(sys_.block_row, kb, cs.block_i, cs.block_j,
                            ti[..., :6], tj[..., :6], cs.normal)
     k, kdiag = plan.matrix(kn, ks)
-    f = asm.scatter_vector(sim.dof_map, np.arange(sim.n), fb, sim.n_unknowns)
+    f = asm.scatter_vector(sys_.dof_map, np.arange(sys_.n), fb, sys_.n_unknowns)
     return k, kdiag, f, len(cs)
 
 

@@ -33,9 +33,8 @@ def time_steps(model: Model, steps: int | None, memory: bool = False,
     peak = _traced_peak_mb(model, warmup + min(steps or 3, 3), adaptive_search) if memory else (
         float("nan"))
     t0 = time.perf_counter()
-    sim = Simulation(model)
+    sim = Simulation(model, adaptive_search=adaptive_search)
     setup = time.perf_counter() - t0
-    sim.adaptive_search = adaptive_search
     contacts = []
     status, message = "completed", ""
     for _ in range(warmup):
@@ -45,7 +44,8 @@ def time_steps(model: Model, steps: int | None, memory: bool = False,
             status, message = "failed", str(exc)
             steps = 0
             break
-    sim.timings.clear()
+    timings = sim.state.diagnostics.timings
+    timings.clear()
     step0, time0 = sim.state.step, sim.state.time
     t1 = time.perf_counter()
     while (steps is None or sim.state.step - step0 < steps) and (
@@ -59,22 +59,21 @@ def time_steps(model: Model, steps: int | None, memory: bool = False,
     wall = time.perf_counter() - t1
     n = sim.state.step - step0
     simulated = sim.state.time - time0
-    return {"blocks": len(model.blocks), "free_blocks": int((~sim.fixed).sum()),
-            "unknowns": sim.n_unknowns, "steps": n, "setup_s": setup, "wall_s": wall,
+    return {"blocks": len(model.blocks), "free_blocks": int((~sim.system.fixed).sum()),
+            "unknowns": sim.system.n_unknowns, "steps": n, "setup_s": setup, "wall_s": wall,
             "per_step_s": wall / max(n, 1), "simulated": simulated, "warmup": warmup,
             "per_sim_second_s": wall / simulated if simulated > 0 else float("nan"),
             "contacts_mean": float(np.mean(contacts)) if contacts else 0.0,
             "contacts_last": contacts[-1] if contacts else 0, "status": status,
             "message": message, "tracemalloc_peak_mb": peak, "rss_peak_mb": h.peak_rss_mb(),
-            **{f"t_{p}": sim.timings.get(p, 0.0) / max(n, 1) for p in PHASES}}
+            **{f"t_{p}": timings.get(p, 0.0) / max(n, 1) for p in PHASES}}
 
 
 def _traced_peak_mb(model: Model, steps: int, adaptive_search: bool) -> float:
     """Peak MB of Python allocations while setting up and stepping `model` `steps` times."""
     tracemalloc.start()
     try:
-        sim = Simulation(model)
-        sim.adaptive_search = adaptive_search
+        sim = Simulation(model, adaptive_search=adaptive_search)
         for _ in range(steps):
             try:
                 sim.step()
@@ -192,7 +191,8 @@ def run_savings(out: Path, full: bool) -> dict[str, Any]:
         m.controls = dataclasses.replace(m.controls, duration=1.0)
         o = h.run_model(m)
         err, d = incline_error(o) if o.status == "completed" else (np.nan, np.nan)
-        r = {"unknowns": Simulation(m).n_unknowns, "steps": o.steps, "wall_s": o.compute_wall,
+        r = {"unknowns": Simulation(m).system.n_unknowns, "steps": o.steps,
+             "wall_s": o.compute_wall,
              "per_step_s": o.compute_wall / max(o.steps, 1), "contacts_mean": float("nan"),
              "status": o.status, "message": o.message, "simulated": o.simulated,
              **{f"t_{p}": o.timings.get(p, 0.0) / max(o.steps, 1) for p in PHASES}}

@@ -1,17 +1,40 @@
-"""PolyDDA's engine: 3-D DDA of polyhedral blocks (no JSON, no service; plain arrays in)."""
+"""PolyDDA's engine: 3-D DDA of polyhedral blocks (no JSON, no service; plain arrays in).
+
+The compiled (numba) kernels are cached on disk in a folder named after a digest of their
+sources: numba's own cache notices a change of a kernel's module but not of a kernel it calls
+from another module (the motion kernels, the contact constants), and would run stale code.
+"""
 
 from __future__ import annotations
 
+import hashlib
 import os
 from pathlib import Path
+
+import numba
+
+_HERE = Path(__file__).resolve().parent
+
+
+def kernel_cache_dir() -> Path:
+    """Where numba caches the engine's kernels: NUMBA_CACHE_DIR when the user sets it, else
+    `engine/__pycache__/kernels-<digest of the kernel sources>`."""
+    if os.environ.get("NUMBA_CACHE_DIR"):
+        return Path(os.environ["NUMBA_CACHE_DIR"])
+    here = Path(__file__).resolve().parent
+    digest = hashlib.sha256()
+    for path in sorted(here.glob("_*_kernels.py")) + [here / "contacts.py"]:
+        if path.exists():
+            digest.update(path.read_bytes())
+    return here / "__pycache__" / f"kernels-{digest.hexdigest()[:16]}"
+
+
+if not os.environ.get("NUMBA_CACHE_DIR"):
+    numba.config.CACHE_DIR = str(kernel_cache_dir())
 
 
 def kernels_cached() -> bool:
     """Whether numba's on-disk cache already holds the engine's compiled kernels; if not,
     the first step of the first run on a machine compiles them (about a minute)."""
-    here = Path(__file__).resolve().parent
-    places = [here / "__pycache__"]
-    if os.environ.get("NUMBA_CACHE_DIR"):
-        places.append(Path(os.environ["NUMBA_CACHE_DIR"]))
-    return any(any(p.rglob("_detection_kernels.narrow_phase-*.nbi")) for p in places
-               if p.is_dir())
+    place = kernel_cache_dir()
+    return place.is_dir() and any(place.rglob("_detection_kernels.narrow_phase-*.nbi"))

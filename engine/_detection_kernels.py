@@ -8,7 +8,8 @@ instead of hundreds of numpy calls. Conventions and the rules (vertex-face,
 edge-edge, vertex-edge, vertex-vertex, shortest exit) are those of the module
 docstring of :mod:`engine.detection`.
 
-Output rows of :func:`narrow_phase` are already in block i / block j orientation:
+Output rows of :func:`narrow_phase` are already in block i / block j orientation; their
+columns are named by the `RI_*` and `RF_*` constants below, here and in Python:
 
 - `ri (k, 10) int64`: block i, block j, kind, key feature i, key feature j, face tag,
   X vertex (global id, -1 for edge-edge), X is block j's piece (flip), number of
@@ -19,16 +20,25 @@ Output rows of :func:`narrow_phase` are already in block i / block j orientation
 
 from __future__ import annotations
 
+from typing import NamedTuple
+
 import numpy as np
 from llvmlite import ir
-from numba import njit, types
+from numba import njit, types, vectorize
 from numba.core import cgutils
 from numba.extending import intrinsic
 
+from engine.contacts import EDGE_EDGE, VERTEX_EDGE, VERTEX_FACE, VERTEX_VERTEX
+
 _OPTS = {"cache": True, "error_model": "numpy", "nogil": True}
 
-VERTEX_FACE, EDGE_EDGE, VERTEX_EDGE, VERTEX_VERTEX = 0, 1, 2, 3
 FEATURE_VERTEX, FEATURE_EDGE, FEATURE_FACE = 0, 1, 2
+
+# columns of the integer rows `ri` ...
+(RI_BLOCK_I, RI_BLOCK_J, RI_KIND, RI_FEATURE_I, RI_FEATURE_J, RI_TAG, RI_VERTEX, RI_FLIP,
+ RI_CANDIDATES, RI_PAIR) = range(10)
+# ... and the first columns of the float rows `rf` (points, normal and tangent take three)
+RF_POINT_I, RF_POINT_J, RF_NORMAL, RF_GAP, RF_TANGENT = 0, 3, 6, 9, 10
 _NI, _NF = 10, 13
 
 
@@ -96,8 +106,11 @@ def _unit_inplace(v: np.ndarray) -> None:
         v[:] = 0.0
 
 
-@njit(**_OPTS)
-def _code(piece: int, kind: int, index: int) -> int:
+@vectorize(["int64(int64, int64, int64)"], cache=True)
+def feature_code(piece: int, kind: int, index: int) -> int:
+    """Stable int64 id of a feature: `((piece * 4 + kind) << 32) | index` (a ufunc: numbers
+    or arrays). `piece` is the piece number within its block, `kind` FEATURE_VERTEX / EDGE
+    / FACE, `index` the block vertex id (vertices) or the piece-local edge / face id."""
     return ((piece * 4 + kind) << 32) | index
 
 
@@ -475,29 +488,29 @@ def _emit(ri: np.ndarray, rf: np.ndarray, k: int, bi: int, bj: int, kind: int, f
           py: np.ndarray, n: np.ndarray, gap: float) -> None:
     """Write row `k` in block i / j orientation (X is block j's piece when `flip`)."""
     s = -1.0 if flip else 1.0
-    ri[k, 0] = bi
-    ri[k, 1] = bj
-    ri[k, 2] = kind
-    ri[k, 3] = fy if flip else fx
-    ri[k, 4] = fx if flip else fy
-    ri[k, 5] = tag
-    ri[k, 6] = vx
-    ri[k, 7] = 1 if flip else 0
-    ri[k, 8] = ncand
-    ri[k, 9] = pair
+    ri[k, RI_BLOCK_I] = bi
+    ri[k, RI_BLOCK_J] = bj
+    ri[k, RI_KIND] = kind
+    ri[k, RI_FEATURE_I] = fy if flip else fx
+    ri[k, RI_FEATURE_J] = fx if flip else fy
+    ri[k, RI_TAG] = tag
+    ri[k, RI_VERTEX] = vx
+    ri[k, RI_FLIP] = 1 if flip else 0
+    ri[k, RI_CANDIDATES] = ncand
+    ri[k, RI_PAIR] = pair
     for j in range(3):
-        rf[k, j] = py[j] if flip else px[j]
-        rf[k, 3 + j] = px[j] if flip else py[j]
-        rf[k, 6 + j] = s * n[j]
-    rf[k, 9] = gap
+        rf[k, RF_POINT_I + j] = py[j] if flip else px[j]
+        rf[k, RF_POINT_J + j] = px[j] if flip else py[j]
+        rf[k, RF_NORMAL + j] = s * n[j]
+    rf[k, RF_GAP] = gap
     # tangent: normal x the coordinate axis least aligned with it
-    nn = rf[k, 6:9]
+    nn = rf[k, RF_NORMAL:RF_NORMAL + 3]
     ax = 0
     for j in range(1, 3):
         if abs(nn[j]) < abs(nn[ax]):
             ax = j
     e0, e1, e2 = (1.0 if ax == 0 else 0.0), (1.0 if ax == 1 else 0.0), (1.0 if ax == 2 else 0.0)
-    t = rf[k, 10:13]
+    t = rf[k, RF_TANGENT:RF_TANGENT + 3]
     t[0] = nn[1] * e2 - nn[2] * e1
     t[1] = nn[2] * e0 - nn[0] * e2
     t[2] = nn[0] * e1 - nn[1] * e0
@@ -507,27 +520,68 @@ def _emit(ri: np.ndarray, rf: np.ndarray, k: int, bi: int, bj: int, kind: int, f
 # --------------------------------------------------------------------------- narrow phase
 
 
+class SceneTopology(NamedTuple):
+    """The flat topology arrays of all blocks' pieces that :func:`narrow_phase` reads (built
+    by :mod:`engine.detection`, whose `_Scene` documents each)."""
+
+    v_surface: np.ndarray
+    v_local: np.ndarray
+    piece_block: np.ndarray
+    piece_local: np.ndarray
+    f_start: np.ndarray
+    f_count: np.ndarray
+    e_start: np.ndarray
+    e_count: np.ndarray
+    pv_start: np.ndarray
+    pv_count: np.ndarray
+    f_vtx: np.ndarray
+    f_nxt: np.ndarray
+    f_edge: np.ndarray
+    f_valid: np.ndarray
+    f_local: np.ndarray
+    f_tag: np.ndarray
+    f_real: np.ndarray
+    e_vtx: np.ndarray
+    e_faces: np.ndarray
+    e_local: np.ndarray
+    e_real: np.ndarray
+    e_slot: np.ndarray
+    pv_vtx: np.ndarray
+    pv_surface: np.ndarray
+    pv_nb_real: np.ndarray
+    pv_faces: np.ndarray
+
+
+class SceneGeometry(NamedTuple):
+    """The position-dependent arrays of :func:`geometry`."""
+
+    f_normal: np.ndarray
+    f_offset: np.ndarray
+    e_dir: np.ndarray
+    e_in: np.ndarray
+    e_flat: np.ndarray
+    pv_dir: np.ndarray
+    p_lo: np.ndarray
+    p_hi: np.ndarray
+
+
+# One long compiled loop by design: the four contact types of a piece pair share the pair's
+# separating plane, near-edge lists and scratch buffers, and splitting it into separate
+# kernels would pass those between calls for every pair (measured slower on piles).
 @njit(**_OPTS)
-def narrow_phase(pa: np.ndarray, pb: np.ndarray, x: np.ndarray, v_surface: np.ndarray,
-                 v_local: np.ndarray, piece_block: np.ndarray, piece_local: np.ndarray,
-                 f_start: np.ndarray, f_count: np.ndarray, e_start: np.ndarray,
-                 e_count: np.ndarray, pv_start: np.ndarray, pv_count: np.ndarray,
-                 f_vtx: np.ndarray, f_nxt: np.ndarray, f_edge: np.ndarray,
-                 f_valid: np.ndarray, f_local: np.ndarray, f_tag: np.ndarray,
-                 f_real: np.ndarray, e_vtx: np.ndarray, e_faces: np.ndarray,
-                 e_local: np.ndarray, e_real: np.ndarray, e_slot: np.ndarray,
-                 pv_vtx: np.ndarray,
-                 pv_surface: np.ndarray, pv_nb_real: np.ndarray, pv_faces: np.ndarray,
-                 f_normal: np.ndarray, f_offset: np.ndarray, e_dir: np.ndarray,
-                 e_in: np.ndarray, e_flat: np.ndarray, pv_dir: np.ndarray,
-                 p_lo: np.ndarray, p_hi: np.ndarray, reach: np.ndarray, snap: float,
-                 ang: float, parallel: float, entrance: float
+def narrow_phase(pa: np.ndarray, pb: np.ndarray, x: np.ndarray, topo: SceneTopology,
+                 geo: SceneGeometry, reach: np.ndarray, snap: float, ang: float,
+                 parallel: float, entrance: float
                  ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Contacts of the piece pairs `(pa[k] of block i, pb[k] of block j)`, reduced to one
     per (piece pair, vertex) (v-f over v-e over v-v, then the largest gap) and without
     edge-edge contacts deeper than the pair's shallowest face exit. A pair is searched
     within `reach[i] + reach[j]` (m; `reach (n_blocks,)`). Returns `(ri, rf, cand)`
     (module docstring)."""
+    (v_surface, v_local, piece_block, piece_local, f_start, f_count, e_start, e_count,
+     pv_start, pv_count, f_vtx, f_nxt, f_edge, f_valid, f_local, f_tag, f_real, e_vtx,
+     e_faces, e_local, e_real, e_slot, pv_vtx, pv_surface, pv_nb_real, pv_faces) = topo
+    f_normal, f_offset, e_dir, e_in, e_flat, pv_dir, p_lo, p_hi = geo
     dmax, dfmax = pv_dir.shape[1], pv_faces.shape[1]
     # a plane through edges lies on a face when within the entrance angle of it
     cos_tag = np.sqrt(1.0 - entrance * entrance)
@@ -668,8 +722,8 @@ def narrow_phase(pa: np.ndarray, pb: np.ndarray, x: np.ndarray, v_surface: np.nd
                         proj[j] = xv[j] - best_d * n[j]
                     v = pv_vtx[pv]
                     _emit(ri, rf, k, bi, bj, VERTEX_FACE,
-                          _code(piece_local[xp], FEATURE_VERTEX, v_local[v]),
-                          _code(piece_local[yp], FEATURE_FACE, f_local[best_f]),
+                          feature_code(piece_local[xp], FEATURE_VERTEX, v_local[v]),
+                          feature_code(piece_local[yp], FEATURE_FACE, f_local[best_f]),
                           f_tag[best_f], v, side == 1, 0, pair, xv, proj, n, best_d)
                     k += 1
                     taken[side, lv] = True
@@ -698,6 +752,11 @@ def narrow_phase(pa: np.ndarray, pb: np.ndarray, x: np.ndarray, v_surface: np.nd
                         best_e, best_gap = ie, gap
                 if best_e < 0:
                     continue
+                # no deeper than the pair's shallowest face exit: an edge within reach
+                # whose plane the vertex is far behind (a narrow face next to the vertex
+                # it touches, as on thin cut blocks) reports a false deep penetration
+                if best_gap < -snap and best_gap < exit_gap - snap:
+                    continue
                 e = edges[best_e]
                 gap, nc, best = _vertex_edge_plane(
                     e, pv, x, v_surface, e_vtx, e_dir, e_faces, e_in, f_normal, f_tag, pv_vtx,
@@ -709,8 +768,8 @@ def narrow_phase(pa: np.ndarray, pb: np.ndarray, x: np.ndarray, v_surface: np.nd
                 tag = ctag[best] if cface[best] else _plane_tag(
                     pv_faces[pv], e_faces[e], f_tag, f_normal, cand[best], cos_tag)
                 _emit(ri, rf, k, bi, bj, VERTEX_EDGE,
-                      _code(piece_local[xp], FEATURE_VERTEX, v_local[v]),
-                      _code(piece_local[yp], FEATURE_EDGE, e_local[e]),
+                      feature_code(piece_local[xp], FEATURE_VERTEX, v_local[v]),
+                      feature_code(piece_local[yp], FEATURE_EDGE, e_local[e]),
                       tag, v, side == 1, q - q0, pair, xv, proj, cand[best], gap)
                 k += 1
                 taken[side, lv] = True
@@ -768,8 +827,8 @@ def narrow_phase(pa: np.ndarray, pb: np.ndarray, x: np.ndarray, v_surface: np.nd
                     if not gap >= exit_gap - snap:
                         continue
                 _emit(ri, rf, k, bi, bj, EDGE_EDGE,
-                      _code(piece_local[a_p], FEATURE_EDGE, e_local[e1]),
-                      _code(piece_local[b_p], FEATURE_EDGE, e_local[e2]),
+                      feature_code(piece_local[a_p], FEATURE_EDGE, e_local[e1]),
+                      feature_code(piece_local[b_p], FEATURE_EDGE, e_local[e2]),
                       _plane_tag(e_faces[e1], e_faces[e2], f_tag, f_normal, n_best,
                                  cos_tag),
                       -1, False, 0, pair, proj, p_best, n_best, gap)
@@ -790,7 +849,8 @@ def narrow_phase(pa: np.ndarray, pb: np.ndarray, x: np.ndarray, v_surface: np.nd
                     ang, parallel, entrance, cand, cvalid, cface, ctag, adm, adm_gap, delta)
                 if best >= 0 and gap > best_gap + snap:  # ties: the first vertex
                     best_b, best_gap = vb, gap
-            if best_b >= 0:
+            # no deeper than the pair's shallowest face exit (as vertex-edge)
+            if best_b >= 0 and not (best_gap < -snap and best_gap < exit_gap - snap):
                 vv_a[m], vv_b[m], vv_gap[m] = va, best_b, best_gap
                 m += 1
         # one contact per vertex of block j's piece too: the largest gap, first on ties
@@ -813,8 +873,8 @@ def narrow_phase(pa: np.ndarray, pb: np.ndarray, x: np.ndarray, v_surface: np.nd
             tag = ctag[best] if cface[best] else _plane_tag(
                 pv_faces[va], pv_faces[vb], f_tag, f_normal, cand[best], cos_tag)
             _emit(ri, rf, k, bi, bj, VERTEX_VERTEX,
-                  _code(piece_local[a_p], FEATURE_VERTEX, v_local[pv_vtx[va]]),
-                  _code(piece_local[b_p], FEATURE_VERTEX, v_local[pv_vtx[vb]]),
+                  feature_code(piece_local[a_p], FEATURE_VERTEX, v_local[pv_vtx[va]]),
+                  feature_code(piece_local[b_p], FEATURE_VERTEX, v_local[pv_vtx[vb]]),
                   tag, pv_vtx[va], False, q - q0, pair,
                   x[pv_vtx[va]], x[pv_vtx[vb]], cand[best], gap)
             k += 1
@@ -964,18 +1024,27 @@ def _vertex_vertex_plane(va: int, vb: int, x: np.ndarray, pv_vtx: np.ndarray,
 def _anchor(ri: np.ndarray, rf: np.ndarray, r: int, snap: float) -> tuple[int, int, int]:
     """What makes two constraints of one block pair the same contact: the X vertex and
     side, or for edge-edge the contact point on block i rounded to the snap distance."""
-    if ri[r, 2] == EDGE_EDGE:
-        return round(rf[r, 0] / snap), round(rf[r, 1] / snap), round(rf[r, 2] / snap)
-    return ri[r, 6], ri[r, 7], 0
+    if ri[r, RI_KIND] == EDGE_EDGE:
+        return (round(rf[r, RF_POINT_I] / snap), round(rf[r, RF_POINT_I + 1] / snap),
+                round(rf[r, RF_POINT_I + 2] / snap))
+    return ri[r, RI_VERTEX], ri[r, RI_FLIP], 0
 
 
 @njit(**_OPTS)
 def _precedes(ri: np.ndarray, t: int, s: int) -> bool:
     """Row `t` comes before row `s`: lower kind, then lower key of block i, of block j."""
-    for c in (2, 3, 4):
+    for c in (RI_KIND, RI_FEATURE_I, RI_FEATURE_J):
         if ri[t, c] != ri[s, c]:
             return ri[t, c] < ri[s, c]
     return t < s
+
+
+@njit(**_OPTS)
+def _key_after(ri: np.ndarray, t: int, s: int) -> bool:
+    """Row `t` has a larger key (feature i, then feature j) than row `s`."""
+    if ri[t, RI_FEATURE_I] != ri[s, RI_FEATURE_I]:
+        return ri[t, RI_FEATURE_I] > ri[s, RI_FEATURE_I]
+    return ri[t, RI_FEATURE_J] > ri[s, RI_FEATURE_J]
 
 
 @njit(**_OPTS)
@@ -993,7 +1062,8 @@ def merge_and_order(ri: np.ndarray, rf: np.ndarray, snap: float, parallel: float
     nrun = 0
     run_start = np.empty(k + 1, dtype=np.int64)
     for r in range(k):
-        if r == 0 or ri[r, 0] != ri[r - 1, 0] or ri[r, 1] != ri[r - 1, 1]:
+        if (r == 0 or ri[r, RI_BLOCK_I] != ri[r - 1, RI_BLOCK_I]
+                or ri[r, RI_BLOCK_J] != ri[r - 1, RI_BLOCK_J]):
             run_start[nrun] = r
             nrun += 1
     run_start[nrun] = k
@@ -1004,19 +1074,19 @@ def merge_and_order(ri: np.ndarray, rf: np.ndarray, snap: float, parallel: float
     for g in range(nrun):
         for s in range(run_start[g], run_start[g + 1]):
             for t in range(run_start[g], run_start[g + 1]):
-                if (t == s or (ri[t, 2] == EDGE_EDGE) != (ri[s, 2] == EDGE_EDGE)
+                if (t == s or (ri[t, RI_KIND] == EDGE_EDGE) != (ri[s, RI_KIND] == EDGE_EDGE)
                         or anchors[t, 0] != anchors[s, 0] or anchors[t, 1] != anchors[s, 1]
                         or anchors[t, 2] != anchors[s, 2] or not _precedes(ri, t, s)):
                     continue
-                if (_dot(rf[s, 6:9], rf[t, 6:9]) > 1.0 - parallel
-                        and abs(rf[s, 9] - rf[t, 9]) < snap):
+                if (_dot(rf[s, RF_NORMAL:RF_NORMAL + 3], rf[t, RF_NORMAL:RF_NORMAL + 3])
+                        > 1.0 - parallel and abs(rf[s, RF_GAP] - rf[t, RF_GAP]) < snap):
                     keep[s] = False
                     break
     # block pairs by (i, j), rows of a pair by (feature i, feature j)
     run_key = np.empty(nrun, dtype=np.int64)
     for g in range(nrun):
         r = run_start[g]
-        run_key[g] = ri[r, 0] * n_blocks + ri[r, 1]
+        run_key[g] = ri[r, RI_BLOCK_I] * n_blocks + ri[r, RI_BLOCK_J]
     out = np.empty(k, dtype=np.int64)
     m = 0
     for g in np.argsort(run_key, kind="mergesort"):
@@ -1025,8 +1095,7 @@ def merge_and_order(ri: np.ndarray, rf: np.ndarray, snap: float, parallel: float
             if not keep[r]:
                 continue
             p = m
-            while p > m0 and (ri[out[p - 1], 3] > ri[r, 3] or (
-                    ri[out[p - 1], 3] == ri[r, 3] and ri[out[p - 1], 4] > ri[r, 4])):
+            while p > m0 and _key_after(ri, out[p - 1], r):
                 out[p] = out[p - 1]
                 p -= 1
             out[p] = r

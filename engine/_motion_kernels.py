@@ -1,14 +1,54 @@
-"""Compiled loops of the block motion update: exact rotation matrices (Rodrigues) and the
-blocks' affine maps and vertices after a step.
+"""Shi's first-order displacement function T(x) (THEORY.md, paper eq. 11) and the compiled
+loops of block motion: the motion T(x) v of points, exact rotation matrices (Rodrigues), the
+blocks' affine maps after a step and the points `c + A (X0 − c0)` of moved blocks.
 
-Called once or twice per step for every block; as numpy (and scipy's Rotation) they were
-a dozen calls costing ~0.1 ms even for one block. Compiled with numba (cached on disk).
+T is defined once here (the constant matrices below); the assembly builds its matrices from
+them and every point motion is evaluated from them. Called once or twice per step for every
+block; as numpy (and scipy's Rotation) they were a dozen calls costing ~0.1 ms even for one
+block. Compiled with numba (cached on disk).
 """
 
 from __future__ import annotations
 
 import numba as nb
 import numpy as np
+
+
+@nb.njit(cache=True)
+def point_motion(v: np.ndarray, x: float, y: float, z: float, out: np.ndarray) -> None:
+    """T(x) v: the motion `out (3,)` of the point at `(x, y, z)` from its block's centroid
+    for block motion `v (12,)` (u, v, w, rx, ry, rz, εx, εy, εz, γyz, γzx, γxy: a velocity
+    or a step's displacement; engineering shear strains act half on each side)."""
+    out[0] = v[0] + v[4] * z - v[5] * y + v[6] * x + 0.5 * (v[11] * y + v[10] * z)
+    out[1] = v[1] + v[5] * x - v[3] * z + v[7] * y + 0.5 * (v[11] * x + v[9] * z)
+    out[2] = v[2] + v[3] * y - v[4] * x + v[8] * z + 0.5 * (v[10] * x + v[9] * y)
+
+
+def _columns(x: float, y: float, z: float) -> np.ndarray:
+    """T at the point `(x, y, z)` `(3, 12)`, column q = the motion of unit v = e_q (exact:
+    every entry is 0, ±1, ±x, ±y, ±z or half of one)."""
+    out = np.zeros((3, 12))
+    for q in range(12):
+        point_motion.py_func(np.eye(12)[q], x, y, z, out[:, q])
+    return out
+
+
+#: T(x) = T0 + x_t TX + y_t TY + z_t TZ with x_t = x − x_c, from :func:`point_motion`
+T0 = _columns(0.0, 0.0, 0.0)
+#: (TX, TY, TZ) stacked `(3, 3, 12)`
+TA = np.stack([_columns(*e) - T0 for e in np.eye(3)])
+
+
+@nb.njit(cache=True, nogil=True)
+def point_motions(points: np.ndarray, centroids: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """T(x) v `(p, 3)` for points `(p, 3)` of blocks with `centroids (p, 3)` moving with
+    `v (p, 12)`."""
+    p = points.shape[0]
+    out = np.empty((p, 3))
+    for k in range(p):
+        point_motion(v[k], points[k, 0] - centroids[k, 0], points[k, 1] - centroids[k, 1],
+                     points[k, 2] - centroids[k, 2], out[k])
+    return out
 
 
 @nb.njit(cache=True)
@@ -71,12 +111,12 @@ def move_blocks(d: np.ndarray, centroid: np.ndarray, affine: np.ndarray,
                 rotation[k, i, j] = rot[k, i, 0] * r0 + rot[k, i, 1] * r1 + rot[k, i, 2] * r2
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, nogil=True)
 def block_vertices(centroid: np.ndarray, affine: np.ndarray, vertex_block: np.ndarray,
                    rel0: np.ndarray) -> np.ndarray:
-    """Current vertices `(V, 3)`: `centroid[b] + affine[b] @ rel0[v]` for the block b of
-    each vertex (`vertex_block (V,)`, `rel0 (V, 3)` initial positions about the initial
-    centroid)."""
+    """Moved points `(V, 3)`: `centroid[b] + affine[b] @ rel0[v]` for the block b of each
+    point (`vertex_block (V,)`, `rel0 (V, 3)` initial positions about the initial
+    centroid). The one evaluation of `c + A (X0 − c0)`."""
     nv = rel0.shape[0]
     out = np.empty((nv, 3))
     for v in range(nv):

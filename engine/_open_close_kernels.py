@@ -4,7 +4,7 @@ and the mode update of the paper's Table 2 (with first entrance for contacts tha
 Each cycle of a step's open-close iteration (~10 per step) ran these as some sixty numpy
 calls over the contact arrays; for a few contacts the calls' overhead was the whole cost,
 for thousands a fifth of the step. Compiled with numba (cached on disk). The rules are
-those documented in :meth:`engine.simulation.Simulation.solve_step`.
+those documented in :mod:`engine.open_close`.
 """
 
 from __future__ import annotations
@@ -12,7 +12,8 @@ from __future__ import annotations
 import numba as nb
 import numpy as np
 
-OPEN, LOCKED, SLIDING = 0, 1, 2  # engine.contacts modes
+from engine._motion_kernels import point_motion
+from engine.contacts import LOCKED, OPEN, SLIDING
 
 
 @nb.njit(cache=True)
@@ -62,6 +63,9 @@ def contact_loads(f: np.ndarray, dof_map: np.ndarray, bi: np.ndarray, bj: np.nda
     return fric_mag, fric
 
 
+# One compiled loop by design: Table 2's branches for a contact share its relative
+# displacement, shear stretch and friction limit, computed once; split into several kernels
+# they would pass a dozen per-contact arrays back and forth every open-close cycle.
 @nb.njit(cache=True)
 def update_modes(d0: np.ndarray, normal: np.ndarray, dr: np.ndarray, shear0: np.ndarray,
                  offset: np.ndarray, mode: np.ndarray, tangent: np.ndarray,
@@ -169,15 +173,6 @@ def update_modes(d0: np.ndarray, normal: np.ndarray, dr: np.ndarray, shear0: np.
 
 
 @nb.njit(cache=True)
-def _point_velocity(v: np.ndarray, x: float, y: float, z: float, out: np.ndarray) -> None:
-    """T(x) v: the velocity `out (3,)` of the point at `(x, y, z)` from the centroid of a
-    block moving with `v (12,)` (translation, rotation, strains with engineering shear)."""
-    out[0] = v[0] + v[4] * z - v[5] * y + v[6] * x + 0.5 * (v[11] * y + v[10] * z)
-    out[1] = v[1] + v[5] * x - v[3] * z + v[7] * y + 0.5 * (v[11] * x + v[9] * z)
-    out[2] = v[2] + v[3] * y - v[4] * x + v[8] * z + 0.5 * (v[10] * x + v[9] * y)
-
-
-@nb.njit(cache=True)
 def initial_modes(bi: np.ndarray, bj: np.ndarray, point_i: np.ndarray,
                   point_j: np.ndarray, normal: np.ndarray, gap: np.ndarray,
                   centroid: np.ndarray, velocity: np.ndarray, row: np.ndarray,
@@ -225,9 +220,9 @@ def initial_modes(bi: np.ndarray, bj: np.ndarray, point_i: np.ndarray,
                 tangent[k, 0], tangent[k, 1], tangent[k, 2] = t0 / tl, t1 / tl, t2 / tl
         elif gap[k] <= touch_gap and mode[k] == OPEN:
             a, b = bi[k], bj[k]
-            _point_velocity(velocity[a], point_i[k, 0] - centroid[a, 0],
+            point_motion(velocity[a], point_i[k, 0] - centroid[a, 0],
                             point_i[k, 1] - centroid[a, 1], point_i[k, 2] - centroid[a, 2], ui)
-            _point_velocity(velocity[b], point_j[k, 0] - centroid[b, 0],
+            point_motion(velocity[b], point_j[k, 0] - centroid[b, 0],
                             point_j[k, 1] - centroid[b, 1], point_j[k, 2] - centroid[b, 2], uj)
             w0, w1, w2 = ui[0] - uj[0], ui[1] - uj[1], ui[2] - uj[2]
             wn = w0 * n0 + w1 * n1 + w2 * n2

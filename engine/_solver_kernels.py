@@ -127,14 +127,7 @@ def pcg_bsr(indptr: np.ndarray, indices: np.ndarray, data: np.ndarray, inv: np.n
     is_coupled = np.zeros(m, dtype=np.bool_)
     for k in coupled:
         is_coupled[k] = True
-    for k in range(m):
-        if not is_coupled[k]:
-            k0 = k * b
-            for i in range(b):
-                s = 0.0
-                for j in range(b):
-                    s += inv[k, i, j] * f[k0 + j]
-                x[k0 + i] = s
+    _block_apply(inv, np.flatnonzero(~is_coupled), f, x)
     fn = 0.0
     for i in range(n):
         fn += f[i] * f[i]

@@ -16,31 +16,11 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from engine.frame import Frame
-from engine.model import JointMaterial, Model
+from engine.model import JointMaterial, Model, StrengthReductionControls
 from engine.simulation import STATUS_CANCELLED, STATUS_FAILED, run
 
-
-@dataclass(frozen=True)
-class StrengthReductionControls:
-    """Settings of the factor-of-safety search.
-
-    The window is `[window_start, observation_time]` (s); a trial fails when the mean
-    acceleration of the fastest block point over the window exceeds
-    `acceleration_threshold` (m/s²). Bisection stops when the bracket is narrower
-    than `tolerance` relative to F.
-    """
-
-    observation_time: float = 3.0
-    window_start: float = 1.0
-    acceleration_threshold: float = 0.01
-    tolerance: float = 0.005
-    factor_min: float = 0.05
-    factor_max: float = 20.0
-    max_runs: int = 30
-    #: joint materials whose strength is reduced (None: all)
-    joint_materials: tuple[int, ...] | None = None
-    #: blocks whose acceleration decides failure (None: every block that is not fixed)
-    watch_blocks: tuple[int, ...] | None = None
+__all__ = ["FactorOfSafetyResult", "StrengthReductionControls", "TrialRun", "factor_of_safety",
+           "reduced_model", "trial"]
 
 
 @dataclass
@@ -165,7 +145,7 @@ def factor_of_safety(
         while check(lo):
             hi = lo
             lo *= 0.5
-            if lo < c.factor_min:
+            if lo < c.min_factor:
                 return _result(model, lo, runs, "failed",
                                f"the model fails even with strengths multiplied by {1 / lo:g}",
                                c.joint_materials)
@@ -174,9 +154,9 @@ def factor_of_safety(
         while not check(hi):
             lo = hi
             hi *= 2.0
-            if hi > c.factor_max:
+            if hi > c.max_factor:
                 return _result(model, hi, runs, "completed",
-                               f"no failure up to a reduction factor of {c.factor_max:g}; "
+                               f"no failure up to a reduction factor of {c.max_factor:g}; "
                                f"the factor of safety is at least that", c.joint_materials)
     while (hi - lo) / lo > c.tolerance and len(runs) < c.max_runs:
         mid = 0.5 * (lo + hi)

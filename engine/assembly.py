@@ -22,40 +22,16 @@ from engine._assembly_kernels import (
     fill_bsr,
     unit_contact_terms,
 )
+from engine._motion_kernels import T0, TA
 
-# T(x) = T0 + x_t Tx + y_t Ty + z_t Tz (THEORY.md, paper eq. 11)
-_T0 = np.zeros((3, 12))
-_T0[0, 0] = _T0[1, 1] = _T0[2, 2] = 1.0
-_TX = np.zeros((3, 12))
-_TY = np.zeros((3, 12))
-_TZ = np.zeros((3, 12))
-# rotation r x x_t
-_TZ[0, 4] = 1.0
-_TY[0, 5] = -1.0
-_TZ[1, 3] = -1.0
-_TX[1, 5] = 1.0
-_TY[2, 3] = 1.0
-_TX[2, 4] = -1.0
-# normal strains
-_TX[0, 6] = 1.0
-_TY[1, 7] = 1.0
-_TZ[2, 8] = 1.0
-# engineering shear strains (γ/2 on each side)
-_TZ[1, 9] = 0.5
-_TY[2, 9] = 0.5
-_TZ[0, 10] = 0.5
-_TX[2, 10] = 0.5
-_TY[0, 11] = 0.5
-_TX[1, 11] = 0.5
-_TA = np.stack([_TX, _TY, _TZ])  # (3, 3, 12)
 #: the T_aᵀ T_b of the second moments C_ab, flattened (9, 144)
-_CROSS = np.einsum("aki,bkj->abij", _TA, _TA).reshape(9, 144)
+_CROSS = np.einsum("aki,bkj->abij", TA, TA).reshape(9, 144)
 
 
 def displacement_matrices(points: np.ndarray, centroids: np.ndarray) -> np.ndarray:
     """`T(x)` `(p, 3, 12)` for points `(p, 3)` of blocks with centroids `(p, 3)`."""
     xt = points - centroids
-    return _T0[None] + np.einsum("pa,aij->pij", xt, _TA)
+    return T0[None] + np.einsum("pa,aij->pij", xt, TA)
 
 
 def mass_matrices(density: np.ndarray, volume: np.ndarray, second: np.ndarray) -> np.ndarray:

@@ -796,38 +796,92 @@ def _glued(
     return _components(n_cells, rows, cols), rows, cols
 
 
+def _cell_widths(fac: _Facets, n_cells: int) -> np.ndarray:
+    """`(c,)` m: each convex cell's smallest extent across its own face planes (its
+    width, as :attr:`Polyhedron.width` of a convex block)."""
+    width = np.full(n_cells, np.inf)
+    cell_of = fac.cell
+    order = np.argsort(cell_of, kind="stable")
+    bounds = np.searchsorted(cell_of[order], np.arange(n_cells + 1))
+    for c in range(n_cells):
+        fs = order[bounds[c]:bounds[c + 1]]
+        if not len(fs):
+            continue
+        ids = np.unique(np.concatenate([fac.ids[f] for f in fs.tolist()]))
+        h = fac.coords[ids] @ fac.plane_normal[fac.label[fs]].T
+        width[c] = float((h.max(axis=0) - h.min(axis=0)).min())
+    return width
+
+
 def _groups(
     fac: _Facets, glued: tuple[np.ndarray, np.ndarray, np.ndarray], sliver: float,
-    merge_below: float, warnings: list[str],
+    merge_below: float, min_width: float, warnings: list[str],
 ) -> tuple[np.ndarray, np.ndarray]:
     """Blocks of the cells `glued` across fictitious facets (:func:`_glued`); blocks
-    smaller than `merge_below` (m³) join the neighbour they share the largest face with.
+    smaller than `merge_below` (m³) or thinner than `min_width` (m: the widest of their
+    cells, so a block glued from cells is as wide as its widest cell) join the neighbour
+    block they share the most facet area with, repeated until none is left (a sliver
+    merged into another sliver is merged again).
 
     Returns `(c,) int` group per cell and `(c,) bool` cells dropped (isolated slivers
     below `sliver` m³).
     """
     group, rows, cols = glued
     n_cells = len(group)
-    gvol = np.bincount(group, weights=fac.cell_volume)
-    small = gvol < max(sliver, merge_below)
+    cell_width = _cell_widths(fac, n_cells) if min_width > 0 else np.full(n_cells, np.inf)
     dropped = np.zeros(n_cells, dtype=bool)
-    if not small.any():
-        return group, dropped
-    g_own = group[fac.cell]
-    cand = np.flatnonzero(small[g_own] & (fac.other >= 0))
-    cand = cand[group[fac.cell[fac.other[cand]]] != g_own[cand]]
-    order = cand[np.lexsort((-fac.area[cand], g_own[cand]))]
-    _, first = np.unique(g_own[order], return_index=True)
-    best = order[first]
-    dropped = (gvol < sliver)[group] & ~np.isin(group, g_own[best])
-    if len(best):
-        warnings.append(f"{len(best)} small block(s) below {max(sliver, merge_below):.3g} m³ "
+    n_small = n_thin = 0
+    thinnest = np.inf
+    for _ in range(8):
+        n_g = int(group.max()) + 1 if n_cells else 0
+        gvol = np.bincount(group, weights=fac.cell_volume, minlength=n_g)
+        gwidth = np.full(n_g, -np.inf)
+        np.maximum.at(gwidth, group, cell_width)
+        small = gvol < max(sliver, merge_below)
+        thin = ~small & (gwidth < min_width)
+        if not (small | thin).any():
+            break
+        g_own = group[fac.cell]
+        cand = np.flatnonzero((small | thin)[g_own] & (fac.other >= 0))
+        g_nb = group[fac.cell[fac.other[cand]]]
+        keep = g_nb != g_own[cand]
+        cand, g_nb = cand[keep], g_nb[keep]
+        if not len(cand):
+            break
+        # shared area per (block, neighbour block): merge across the largest
+        pair_keys, inv = np.unique(np.stack([g_own[cand], g_nb], axis=1), axis=0,
+                                   return_inverse=True)
+        area = np.bincount(inv.reshape(-1), weights=fac.area[cand])
+        order = np.lexsort((-area, pair_keys[:, 0]))
+        _, first = np.unique(pair_keys[order, 0], return_index=True)
+        best = order[first]
+        src, dst = pair_keys[best, 0], pair_keys[best, 1]
+        n_small += int(small[src].sum())
+        n_thin += int(thin[src].sum())
+        if thin[src].any():
+            thinnest = min(thinnest, float(gwidth[src][thin[src]].min()))
+        # one facet pair between each merged block and its neighbour joins them
+        rep = np.zeros(n_g, dtype=np.int64)
+        rep[group] = np.arange(n_cells)
+        rows = np.concatenate([rows, rep[src]])
+        cols = np.concatenate([cols, rep[dst]])
+        group = _components(n_cells, rows, cols)
+    n_g = int(group.max()) + 1 if n_cells else 0
+    gvol = np.bincount(group, weights=fac.cell_volume, minlength=n_g)
+    has_nb = np.zeros(n_g, dtype=bool)
+    m = fac.other >= 0
+    has_nb[group[fac.cell[m]][group[fac.cell[m]] != group[fac.cell[fac.other[m]]]]] = True
+    dropped = ((gvol < sliver) & ~has_nb)[group]
+    if n_small:
+        warnings.append(f"{n_small} small block(s) below {max(sliver, merge_below):.3g} m³ "
                         "merged into a neighbour block")
+    if n_thin:
+        warnings.append(f"{n_thin} thin block(s) (sliver: narrower than {min_width:.3g} m, "
+                        f"the thinnest {thinnest:.3g} m) merged into the neighbour they "
+                        "share the largest face with")
     if dropped.any():
         warnings.append(f"{len(np.unique(group[dropped]))} isolated sliver block(s) dropped")
-    rows = np.concatenate([rows, fac.cell[best]])
-    cols = np.concatenate([cols, fac.cell[fac.other[best]]])
-    return _components(n_cells, rows, cols), dropped
+    return group, dropped
 
 
 def _closed_cells(fac: _Facets, cells: np.ndarray, scale: float, tol: Tolerances) -> np.ndarray:
@@ -843,7 +897,7 @@ def _closed_cells(fac: _Facets, cells: np.ndarray, scale: float, tol: Tolerances
     pos[cells] = np.arange(len(cells))
     sel = np.flatnonzero(pos[fac.cell] >= 0)
     ok = (fac.cell_volume[cells] > 0) & ~fac.cell_broken[cells]
-    small_area = sel[fac.area[sel] <= tol.length("point_merge", scale) ** 2]
+    small_area = sel[fac.area[sel] <= tol.lengths(scale).point_merge ** 2]
     ok[pos[fac.cell[small_area]]] = False
     indptr, indices = faces_to_csr([fac.ids[f] for f in sel.tolist()])
     counts = np.diff(indptr)
@@ -884,13 +938,26 @@ def _idle_joint_warnings(joints: Sequence[JointPlane], separating: set[int]) -> 
     return out
 
 
+def _set_spacing(planes: _Planes) -> float | None:
+    """Median spacing (m) of parallel joint planes (joint sets), None if there are none."""
+    gaps: list[float] = []
+    for pids in planes.group_planes:
+        offs = np.sort([planes.offset[q] for q in pids if planes.members[q]])
+        if len(offs) > 1:
+            gaps.extend(np.diff(offs).tolist())
+    return float(np.median(gaps)) if gaps else None
+
+
 #: default smallest block, as a fraction of the median block volume of the cut
 MIN_BLOCK_VOLUME_RATIO = 1e-3
+#: default thinnest block, as a fraction of the median spacing of the joint sets (of the
+#: median block width without sets): thinner blocks are slivers and merge
+MIN_BLOCK_WIDTH_RATIO = 0.1
 
 
 def cut_blocks(
     domain: Polyhedron, joints: Sequence[JointPlane], tol: Tolerances = DEFAULT_TOLERANCES,
-    min_block_volume: float | None = None,
+    min_block_volume: float | None = None, min_block_width: float | None = None,
 ) -> CutResult:
     """Cut `domain` into blocks by `joints` (persistent or bounded by an extent polygon).
 
@@ -899,11 +966,17 @@ def cut_blocks(
     smaller than `min_block_volume` m³ (default MIN_BLOCK_VOLUME_RATIO of the median
     block volume; 0 keeps all but numerical slivers) merge into the neighbour they share
     the largest face with: corner slivers weigh nothing, and their tiny inertia would force
-    the time step down to microseconds.
+    the time step down to microseconds. Slivers - blocks thinner than `min_block_width` m
+    (default MIN_BLOCK_WIDTH_RATIO of the joint sets' median spacing, or of the median
+    block width without sets; 0 keeps them), however
+    large - merge the same way: a thin block bounds every step's displacement (nothing may
+    tunnel through it) and its narrow faces confuse the contact search. A merged block may
+    be concave; its convex pieces are cells of the same arrangement, so it touches its
+    neighbours exactly as the cells did.
     """
     warnings: list[str] = []
     scale = float(np.ptp(domain.vertices[domain.surface_vertex_ids], axis=0).max())
-    planes = _Planes(tol.length("on_plane", scale))
+    planes = _Planes(tol.lengths(scale).on_plane)
     cells, cut, filter_inside = _initial_cells(domain, planes)
     jlist, jcut = _joints_of(joints, planes)
     cells = _arrange(cells, planes, cut + jcut)
@@ -911,7 +984,7 @@ def cut_blocks(
         cells = _inside(cells, domain)
     if not cells:
         return CutResult([], ["the domain has no volume to cut"])
-    fac = _build_facets(cells, planes, tol.length("point_merge", scale))
+    fac = _build_facets(cells, planes, tol.lengths(scale).point_merge)
     if fac.multi:
         warnings.append(f"{fac.multi} facet(s) shared by more than two cells (degenerate cut)")
     owner = _real_joints(fac, planes, jlist)
@@ -923,7 +996,14 @@ def cut_blocks(
     if min_block_volume is None:
         vols = np.bincount(glued[0], weights=fac.cell_volume)
         min_block_volume = MIN_BLOCK_VOLUME_RATIO * float(np.median(vols[vols > 0]))
-    group, dropped = _groups(fac, glued, sliver, min_block_volume, warnings)
+    if min_block_width is None:
+        typical = _set_spacing(planes)
+        if typical is None:
+            widths = np.full(int(glued[0].max()) + 1, -np.inf)
+            np.maximum.at(widths, glued[0], _cell_widths(fac, len(cells)))
+            typical = float(np.median(widths[widths > 0]))
+        min_block_width = MIN_BLOCK_WIDTH_RATIO * typical
+    group, dropped = _groups(fac, glued, sliver, min_block_volume, min_block_width, warnings)
     cell_facets: list[list[int]] = [[] for _ in cells]
     for f, c in enumerate(fac.cell.tolist()):
         cell_facets[c].append(f)
@@ -966,7 +1046,7 @@ def convex_decomposition(block: Polyhedron, tol: Tolerances = DEFAULT_TOLERANCES
     if block.is_convex:
         return base
     scale = float(np.ptp(block.vertices[block.surface_vertex_ids], axis=0).max())
-    planes = _Planes(tol.length("on_plane", scale))
+    planes = _Planes(tol.lengths(scale).on_plane)
     cells, cut, _ = _initial_cells(block, planes)
     cells = _inside(_arrange(cells, planes, cut), block)
     return _attach_pieces(base, cells, tol, scale)
@@ -976,7 +1056,8 @@ def _attach_pieces(
     block: Polyhedron, cells: list[_Cell], tol: Tolerances, scale: float
 ) -> Polyhedron:
     """`block` with `cells` as pieces indexing its vertices (new points appended at the end)."""
-    r = tol.length("point_merge", scale)
+    lengths = tol.lengths(scale)
+    r, planarity = lengths.point_merge, lengths.planarity
     surf = block.surface_vertex_ids
     pts = np.vstack([c.verts for c in cells])
     dist, near = cKDTree(block.vertices[surf]).query(pts, distance_upper_bound=10 * r)
@@ -1001,7 +1082,7 @@ def _attach_pieces(
         surf_of = np.full(len(faces), -1, dtype=np.int64)
         for k in range(len(faces)):
             cand = np.flatnonzero((fn @ nrm[k] > 1 - 1e-9)
-                                  & (np.abs(fo - fn @ cen[k]) < tol.length("planarity", scale)))
+                                  & (np.abs(fo - fn @ cen[k]) < planarity))
             for f in cand.tolist():
                 poly = verts[block.faces[f]]
                 u, v = u_v[f]

@@ -20,36 +20,23 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass
+from functools import cached_property
 
 import numpy as np
 
 from engine import _detection_kernels as kern
+from engine._detection_kernels import FEATURE_EDGE, FEATURE_FACE, FEATURE_VERTEX, feature_code
 from engine.contacts import LOCKED, OPEN, ContactSet
 from engine.geometry import ConvexPiece, Polyhedron, edge_topology
 from engine.tolerances import DEFAULT_TOLERANCES, Tolerances
 
-FEATURE_VERTEX, FEATURE_EDGE, FEATURE_FACE = 0, 1, 2
-
-#: sine of the angle a cone edge may dip through a contact plane and still count as
-#: entering / not overlapping: a block tilted by up to ~3 degrees in a step (paper
-#: section 5.2, theta = 1-3 deg) keeps its face-to-face contacts
-ENTRANCE_TOLERANCE = 0.05
-
 _I64 = np.int64
+
+__all__ = ["FEATURE_EDGE", "FEATURE_FACE", "FEATURE_VERTEX", "aabb_pairs", "decode_feature",
+           "detect_contacts", "feature_code"]
 
 
 # --------------------------------------------------------------------------- feature codes
-
-
-def feature_code(piece: np.ndarray | int, kind: np.ndarray | int,
-                 index: np.ndarray | int) -> np.ndarray:
-    """Stable int64 id of a feature: `((piece * 4 + kind) << 32) | index`.
-
-    `piece` is the piece number within its block, `kind` FEATURE_VERTEX / EDGE / FACE,
-    `index` the block vertex id (vertices) or the piece-local edge / face id.
-    """
-    p, k, i = (np.asarray(x, dtype=_I64) for x in (piece, kind, index))
-    return ((p * 4 + k) << 32) | i
 
 
 def decode_feature(code: np.ndarray | int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -224,6 +211,11 @@ class _Scene:
     pv_nb_real: np.ndarray
     pv_faces: np.ndarray  # (V, Df) global faces, -1 pad
 
+    @cached_property
+    def topology(self) -> kern.SceneTopology:
+        """The arrays the narrow phase reads, as one record."""
+        return kern.SceneTopology(*(getattr(self, name) for name in kern.SceneTopology._fields))
+
 
 def _build_scene(blocks: Sequence[Polyhedron]) -> _Scene:
     """Gather topology of every piece of every block into flat global arrays."""
@@ -359,11 +351,11 @@ def detect_contacts(blocks: Sequence[Polyhedron], search_distance: float | np.nd
             raise ValueError(f"search_distance has shape {reach.shape}, expected a number "
                              "or one reach per block")
     parallel = float(tol.parallel)
-    f_normal, f_offset, e_dir, e_in, e_flat, pv_dir, p_lo, p_hi = kern.geometry(
-        x, s.f_vtx, s.f_nxt, s.e_vtx, s.e_faces, s.pv_vtx, s.pv_nb, s.pv_start, s.pv_count,
-        parallel)
+    geo = kern.SceneGeometry(*kern.geometry(x, s.f_vtx, s.f_nxt, s.e_vtx, s.e_faces, s.pv_vtx,
+                                            s.pv_nb, s.pv_start, s.pv_count, parallel))
+    p_lo, p_hi = geo.p_lo, geo.p_hi
     # the scene's size from the piece boxes (every vertex belongs to a piece)
-    snap = tol.length("feature_snap", float((p_hi.max(axis=0) - p_lo.min(axis=0)).max()))
+    snap = tol.lengths(float((p_hi.max(axis=0) - p_lo.min(axis=0)).max())).feature_snap
     # broad phase on block boxes, then on piece boxes
     blo = np.minimum.reduceat(p_lo, s.block_piece0, axis=0)
     bhi = np.maximum.reduceat(p_hi, s.block_piece0, axis=0)
@@ -375,13 +367,8 @@ def detect_contacts(blocks: Sequence[Polyhedron], search_distance: float | np.nd
     if len(pairs) == 0:
         return ContactSet()
     pa, pb = kern.piece_pairs(pairs, s.piece_block, p_lo, p_hi, inflate)
-    ri, rf, cand = kern.narrow_phase(
-        pa, pb, x, s.v_surface, s.v_local, s.piece_block, s.piece_local, s.f_start,
-        s.f_count, s.e_start, s.e_count, s.pv_start, s.pv_count, s.f_vtx, s.f_nxt, s.f_edge,
-        s.f_valid, s.f_local, s.f_tag, s.f_real, s.e_vtx, s.e_faces, s.e_local, s.e_real,
-        s.e_slot, s.pv_vtx, s.pv_surface, s.pv_nb_real, s.pv_faces, f_normal, f_offset, e_dir, e_in,
-        e_flat, pv_dir, p_lo, p_hi, reach, snap, float(np.sqrt(2.0 * parallel)), parallel,
-        ENTRANCE_TOLERANCE)
+    ri, rf, cand = kern.narrow_phase(pa, pb, x, s.topology, geo, reach, snap,
+                                     float(np.sqrt(2.0 * parallel)), parallel, tol.entrance)
     return _to_contact_set(ri, rf, cand, snap, parallel, len(blocks))
 
 
@@ -392,14 +379,19 @@ def _to_contact_set(ri: np.ndarray, rf: np.ndarray, cand: np.ndarray, snap: floa
     if len(ri) == 0:
         return ContactSet()
     rows = kern.merge_and_order(ri, rf, snap, parallel, n_blocks)
-    ptr, normals = kern.gather_candidates(ri[:, 8], cand, rows)
+    ptr, normals = kern.gather_candidates(ri[:, kern.RI_CANDIDATES], cand, rows)
     g, f = ri[rows], rf[rows]
-    gap = f[:, 9].copy()
+    gap = f[:, kern.RF_GAP].copy()
+
+    def vec(col: int) -> np.ndarray:
+        return f[:, col:col + 3].copy()
+
     return ContactSet(
-        block_i=g[:, 0].copy(), block_j=g[:, 1].copy(), kind=g[:, 2].astype(np.int8),
-        point_i=f[:, 0:3].copy(), point_j=f[:, 3:6].copy(), normal=f[:, 6:9].copy(),
-        tangent=f[:, 10:13].copy(), mode=np.where(gap < 0, LOCKED, OPEN).astype(np.int8),
-        gap=gap, key=g[:, [0, 3, 1, 4]], face_tag=g[:, 5].copy(),
-        joint_material=np.zeros(len(rows), dtype=_I64), cand_indptr=ptr,
-        cand_normals=normals,
+        block_i=g[:, kern.RI_BLOCK_I].copy(), block_j=g[:, kern.RI_BLOCK_J].copy(),
+        kind=g[:, kern.RI_KIND].astype(np.int8), point_i=vec(kern.RF_POINT_I),
+        point_j=vec(kern.RF_POINT_J), normal=vec(kern.RF_NORMAL), tangent=vec(kern.RF_TANGENT),
+        mode=np.where(gap < 0, LOCKED, OPEN).astype(np.int8), gap=gap,
+        key=g[:, [kern.RI_BLOCK_I, kern.RI_FEATURE_I, kern.RI_BLOCK_J, kern.RI_FEATURE_J]],
+        face_tag=g[:, kern.RI_TAG].copy(), joint_material=np.zeros(len(rows), dtype=_I64),
+        cand_indptr=ptr, cand_normals=normals,
     )

@@ -280,15 +280,15 @@ def polyhedron_problems(
         )
     if problems:
         return problems
-    scale = float(np.ptp(v, axis=0).max())
+    lengths = tol.lengths(float(np.ptp(v, axis=0).max()))
     normals, area = face_normals_areas(v, indptr, indices)
     for k, f in enumerate(faces):
-        if area[k] <= tol.length("point_merge", scale) ** 2:
+        if area[k] <= lengths.point_merge ** 2:
             problems.append(f"face {k} has zero area")
             continue
         p = v[list(f)]
         off = np.abs((p - p.mean(axis=0)) @ normals[k]).max()
-        if off > tol.length("planarity", scale):
+        if off > lengths.planarity:
             problems.append(f"face {k} is not planar: a vertex is {off:.3g} m off its plane")
     if problems:
         return problems
@@ -305,8 +305,25 @@ def polyhedron_problems(
 # --------------------------------------------------------------------------- types
 
 
+class _Faces:
+    """What follows from polygon faces given as CSR (`face_indptr`, `face_indices`): the
+    vertices they use and their edges; shared by blocks and their convex pieces."""
+
+    face_indptr: np.ndarray
+    face_indices: np.ndarray
+
+    @cached_property
+    def _used(self) -> np.ndarray:
+        return np.unique(self.face_indices)
+
+    @cached_property
+    def _edges(self) -> tuple[np.ndarray, np.ndarray]:
+        e, ef, _, _ = edge_topology(self.face_indptr, self.face_indices)
+        return e, ef
+
+
 @dataclass(frozen=True, eq=False)
-class ConvexPiece:
+class ConvexPiece(_Faces):
     """A convex part of a (possibly concave) block, sharing the block's vertex array.
 
     `face_indptr`, `face_indices` index the block's vertices; `face_surface (m,)` is
@@ -317,20 +334,19 @@ class ConvexPiece:
     face_indices: np.ndarray
     face_surface: np.ndarray
 
-    @cached_property
-    def vertex_ids(self) -> np.ndarray:
-        """Block vertex indices used by this piece `(k,) int`."""
-        return np.unique(self.face_indices)
+    vertex_ids = property(lambda self: self._used,
+                          doc="Block vertex indices used by this piece `(k,) int`.")
+    edges = property(lambda self: self._edges,
+                     doc="`(edges (e, 2), edge_faces (e, 2))` of the piece.")
 
-    @cached_property
-    def edges(self) -> tuple[np.ndarray, np.ndarray]:
-        """`(edges (e, 2), edge_faces (e, 2))` of the piece."""
-        e, ef, _, _ = edge_topology(self.face_indptr, self.face_indices)
-        return e, ef
+
+def _part(source: str, index: int, doc: str) -> property:
+    """A read-only property: item `index` of the cached tuple attribute `source`."""
+    return property(lambda self: getattr(self, source)[index], doc=doc)
 
 
 @dataclass(frozen=True, eq=False)
-class Polyhedron:
+class Polyhedron(_Faces):
     """A block's closed surface: vertices `(n, 3)`, polygon faces (CSR), face tags.
 
     `face_tags (m,)` say what each face lies on: a joint id (>= 0) or
@@ -376,25 +392,11 @@ class Polyhedron:
         """Faces as a list of vertex-index arrays."""
         return np.split(self.face_indices, self.face_indptr[1:-1])
 
-    @cached_property
-    def surface_vertex_ids(self) -> np.ndarray:
-        """Indices of the vertices the surface uses `(k,) int`."""
-        return np.unique(self.face_indices)
-
-    @cached_property
-    def _edges(self) -> tuple[np.ndarray, np.ndarray]:
-        e, ef, _, _ = edge_topology(self.face_indptr, self.face_indices)
-        return e, ef
-
-    @property
-    def edges(self) -> np.ndarray:
-        """Undirected edges `(e, 2) int`, directed as in their first face."""
-        return self._edges[0]
-
-    @property
-    def edge_faces(self) -> np.ndarray:
-        """The two faces of each edge `(e, 2) int`: the one running a->b, then b->a."""
-        return self._edges[1]
+    surface_vertex_ids = property(lambda self: self._used,
+                                  doc="Indices of the vertices the surface uses `(k,) int`.")
+    edges = _part("_edges", 0, "Undirected edges `(e, 2) int`, directed as in their first face.")
+    edge_faces = _part("_edges", 1, "The two faces of each edge `(e, 2) int`: the one running "
+                       "a->b, then b->a.")
 
     @cached_property
     def edge_convexity(self) -> np.ndarray:
@@ -410,15 +412,8 @@ class Polyhedron:
     def _normals_areas(self) -> tuple[np.ndarray, np.ndarray]:
         return face_normals_areas(self.vertices, self.face_indptr, self.face_indices)
 
-    @property
-    def face_normals(self) -> np.ndarray:
-        """Outward unit normals `(m, 3)`."""
-        return self._normals_areas[0]
-
-    @property
-    def face_areas(self) -> np.ndarray:
-        """Face areas `(m,)` in m²."""
-        return self._normals_areas[1]
+    face_normals = _part("_normals_areas", 0, "Outward unit normals `(m, 3)`.")
+    face_areas = _part("_normals_areas", 1, "Face areas `(m,)` in m².")
 
     @cached_property
     def face_offsets(self) -> np.ndarray:
@@ -430,20 +425,9 @@ class Polyhedron:
     def _mass(self) -> tuple[float, np.ndarray, np.ndarray]:
         return mass_properties(self.vertices, self.face_indptr, self.face_indices)
 
-    @property
-    def volume(self) -> float:
-        """Volume in m³."""
-        return self._mass[0]
-
-    @property
-    def centroid(self) -> np.ndarray:
-        """Centroid `(3,)` in m."""
-        return self._mass[1]
-
-    @property
-    def second_moments(self) -> np.ndarray:
-        """`C = ∫ x_t x_tᵀ dV` `(3, 3)` about the centroid, m⁵."""
-        return self._mass[2]
+    volume = _part("_mass", 0, "Volume in m³.")
+    centroid = _part("_mass", 1, "Centroid `(3,)` in m.")
+    second_moments = _part("_mass", 2, "`C = ∫ x_t x_tᵀ dV` `(3, 3)` about the centroid, m⁵.")
 
     @cached_property
     def width(self) -> float:

@@ -23,11 +23,15 @@ class Material:
     poisson_ratio: float = 0.25
 
 
+#: friction angle of a joint material that states none (degrees)
+DEFAULT_FRICTION_ANGLE_DEG = 30.0
+
+
 @dataclass(frozen=True)
 class JointMaterial:
     """Joint strength: friction angle (rad), cohesion (Pa), tensile strength (Pa)."""
 
-    friction_angle_rad: float = np.radians(30.0)
+    friction_angle_rad: float = np.radians(DEFAULT_FRICTION_ANGLE_DEG)
     cohesion: float = 0.0
     tensile_strength: float = 0.0
 
@@ -108,6 +112,31 @@ class AnalysisControls:
     min_time_step: float = 1e-7
     fixed_point_penalty: float | None = None
     record_contacts: bool = True
+
+
+@dataclass(frozen=True)
+class StrengthReductionControls:
+    """Settings of the factor-of-safety search.
+
+    Each trial runs `observation_time` s; it fails when the mean acceleration of the
+    fastest watched block point over `[window_start, observation_time]` s exceeds
+    `acceleration_threshold` (m/s²) (sustained acceleration, VALIDATION.md 2.3). F is
+    searched within `[min_factor, max_factor]`; bisection stops when the bracket is
+    narrower than `tolerance` relative to F or after `max_runs` trials. The scene schema
+    takes its defaults from here.
+    """
+
+    observation_time: float = 3.0
+    window_start: float = 1.0
+    acceleration_threshold: float = 0.01
+    tolerance: float = 0.005
+    min_factor: float = 0.05
+    max_factor: float = 20.0
+    max_runs: int = 30
+    #: joint materials whose strength is reduced (None: all)
+    joint_materials: tuple[int, ...] | None = None
+    #: blocks whose acceleration decides failure (None: every block that is not fixed)
+    watch_blocks: tuple[int, ...] | None = None
 
 
 @dataclass

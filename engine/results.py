@@ -49,6 +49,7 @@ from typing import Any
 import h5py
 import numpy as np
 
+from engine._motion_kernels import block_vertices, point_motions
 from engine.frame import Frame
 from engine.model import Model
 
@@ -168,25 +169,25 @@ def _flatten_model(model: Model) -> _Static:
 def point_velocities(
     points: np.ndarray, centroids: np.ndarray, velocity: np.ndarray
 ) -> np.ndarray:
-    """Velocity `(p, 3)` of points `(p, 3)` from their block's `centroids (p, 3)`, `(p, 12)` rates.
-
-    `v + ω × r + Ė r` with `r = x - c` and Ė the symmetric strain rate (engineering shears).
-    """
-    r = points - centroids
-    v = velocity[:, :3] + np.cross(velocity[:, 3:6], r)
-    e = velocity[:, 6:12]
-    v[:, 0] += e[:, 0] * r[:, 0] + 0.5 * (e[:, 5] * r[:, 1] + e[:, 4] * r[:, 2])
-    v[:, 1] += e[:, 1] * r[:, 1] + 0.5 * (e[:, 5] * r[:, 0] + e[:, 3] * r[:, 2])
-    v[:, 2] += e[:, 2] * r[:, 2] + 0.5 * (e[:, 4] * r[:, 0] + e[:, 3] * r[:, 1])
-    return v
+    """Velocity `(p, 3)` of points `(p, 3)` from their block's `centroids (p, 3)` and rates
+    `velocity (p, 12)`: T(x) v (:func:`engine._motion_kernels.point_motion`)."""
+    return point_motions(np.ascontiguousarray(points, dtype=float),
+                         np.ascontiguousarray(centroids, dtype=float),
+                         np.ascontiguousarray(velocity, dtype=float))
 
 
-def transform_points(
-    x0: np.ndarray, c0: np.ndarray, centroids: np.ndarray, affine: np.ndarray
-) -> np.ndarray:
-    """Moved points `c + A (X0 - c0)` `(..., p, 3)`; every argument is per point
-    (`affine (..., p, 3, 3)`), leading axes (steps) broadcast."""
-    return centroids + np.einsum("...ij,...j->...i", affine, x0 - c0)
+def transform_points(rel0: np.ndarray, vertex_block: np.ndarray, centroids: np.ndarray,
+                     affine: np.ndarray) -> np.ndarray:
+    """Moved points `c + A (X0 − c0)` `(..., p, 3)` of points `rel0 = X0 − c0 (p, 3)` of
+    blocks `vertex_block (p,)`, for block `centroids (..., n, 3)` and `affine (..., n, 3,
+    3)`; leading axes (steps) broadcast (:func:`engine._motion_kernels.block_vertices`)."""
+    lead = centroids.shape[:-2]
+    cent = np.ascontiguousarray(centroids, dtype=float).reshape(-1, *centroids.shape[-2:])
+    aff = np.ascontiguousarray(affine, dtype=float).reshape(-1, *affine.shape[-3:])
+    rel = np.ascontiguousarray(rel0, dtype=float)
+    vb = np.ascontiguousarray(vertex_block, dtype=np.int64)
+    out = np.stack([block_vertices(c, a, vb, rel) for c, a in zip(cent, aff, strict=True)])
+    return out.reshape(*lead, len(rel), 3)
 
 
 @dataclass
@@ -629,7 +630,8 @@ class ResultWriter:
         nv = len(st.vertices)
         vb = st.vertex_block
         cent = hist["centroid"][:, vb]  # (m, V, 3)
-        pts = transform_points(st.vertices, st.centroid[vb], cent, hist["affine"][:, vb])
+        pts = transform_points(st.vertices - st.centroid[vb], vb, hist["centroid"],
+                               hist["affine"])
         vel = point_velocities(pts.reshape(-1, 3), cent.reshape(-1, 3),
                                hist["velocity"][:, vb].reshape(-1, 12))
         writes += [("VTKHDF/Points", pts.reshape(-1, 3)),
@@ -935,9 +937,9 @@ class Result:
         """Surface vertices of all blocks `(V, 3)` at a step, in `/blocks/vertices` order."""
         k = self.resolve_step(step_index)
         h = self._file["history"]
-        cent, aff = h["centroid"][k], h["affine"][k]
         vb = self._vblock
-        return transform_points(self._x0, self.initial_centroids[vb], cent[vb], aff[vb])
+        return transform_points(self._x0 - self.initial_centroids[vb], vb,
+                                h["centroid"][k], h["affine"][k])
 
     def vertices(self, step_index: int) -> list[np.ndarray]:
         """Surface vertices `(k_b, 3)` of each block at a step, `centroid + A (X0 - c0)`."""

@@ -6,11 +6,22 @@ from dataclasses import dataclass
 
 
 @dataclass(frozen=True)
+class Lengths:
+    """The length tolerances of :class:`Tolerances` in metres, for one model size."""
+
+    point_merge: float
+    planarity: float
+    on_plane: float
+    feature_snap: float
+    touching: float
+
+
+@dataclass(frozen=True)
 class Tolerances:
     """Tolerances, relative to a length scale unless the name says otherwise.
 
-    Lengths are multiplied by the model's length scale (the largest bounding-box
-    edge) by :meth:`length`, so a 1 mm scene and a 1 km scene behave alike.
+    Lengths become metres by :meth:`lengths` (times the model's length scale, the largest
+    bounding-box edge), so a 1 mm scene and a 1 km scene behave alike.
     """
 
     #: points closer than this (relative) are the same point
@@ -19,18 +30,24 @@ class Tolerances:
     planarity: float = 1e-6
     #: a vertex within this (relative) distance of a cutting plane lies on it
     on_plane: float = 1e-9
-    #: cells or blocks with volume below this fraction of the domain volume are slivers
-    sliver_volume: float = 1e-9
-    #: unit normals whose dot product exceeds 1 - this are parallel
-    parallel: float = 1e-9
     #: contact features closer than this (relative) to an edge end are at the end (v-v / v-e)
     feature_snap: float = 1e-6
     #: a new contact whose gap is below this (relative) touches and starts closed
     touching: float = 1e-9
+    #: cells or blocks with volume below this fraction of the domain volume are slivers
+    sliver_volume: float = 1e-9
+    #: unit normals whose dot product exceeds 1 - this are parallel
+    parallel: float = 1e-9
+    #: sine of the angle a cone edge may dip through a contact plane and still count as
+    #: entering / not overlapping: a block tilted by up to ~3 degrees in a step (paper
+    #: section 5.2, theta = 1-3 deg) keeps its face-to-face contacts
+    entrance: float = 0.05
 
-    def length(self, name: str, scale: float) -> float:
-        """Absolute length tolerance `name` for a model of size `scale` (m)."""
-        return float(getattr(self, name)) * max(float(scale), 1e-12)
+    def lengths(self, scale: float) -> Lengths:
+        """The length tolerances in metres for a model of size `scale` (m)."""
+        s = max(float(scale), 1e-12)
+        return Lengths(self.point_merge * s, self.planarity * s, self.on_plane * s,
+                       self.feature_snap * s, self.touching * s)
 
 
 DEFAULT_TOLERANCES = Tolerances()

@@ -36,6 +36,7 @@ from engine.model import (
     Material,
     Model,
     PointLoad,
+    StrengthReductionControls,
 )
 from engine.tolerances import DEFAULT_TOLERANCES
 from schemas.errors import Problems, SceneError, fmt_point
@@ -54,19 +55,6 @@ OVERLAP_TOLERANCE = 1e-6
 ON_SURFACE_TOLERANCE = 1e-6
 
 
-@dataclass(frozen=True)
-class FactorOfSafetySettings:
-    """Strength-reduction settings with names resolved to indices (see FactorOfSafetySpec)."""
-
-    tolerance: float
-    min_factor: float
-    max_factor: float
-    observation_time: float
-    averaging_start: float
-    joint_materials: tuple[int, ...]
-    watch_blocks: tuple[int, ...]
-
-
 @dataclass
 class BuildResult:
     """The engine model and what the scene called things.
@@ -82,7 +70,7 @@ class BuildResult:
     joint_material_names: list[str]
     joint_names: list[str]
     warnings: list[str] = field(default_factory=list)
-    factor_of_safety: FactorOfSafetySettings | None = None
+    factor_of_safety: StrengthReductionControls | None = None
 
     def block_index(self, name: str) -> int:
         """Index of the block called `name` (KeyError if none)."""
@@ -208,7 +196,8 @@ def _cut_domain(scene: Scene, p: Problems, warnings: list[str]) -> list[Polyhedr
         return []
     from engine.cutting import cut_blocks
 
-    result = cut_blocks(domain, planes, min_block_volume=d.min_block_volume)
+    result = cut_blocks(domain, planes, min_block_volume=d.min_block_volume,
+                        min_block_width=d.min_block_width)
     for w in result.warnings:
         w = _name_joints(w, scene)
         if w not in warnings:
@@ -218,7 +207,7 @@ def _cut_domain(scene: Scene, p: Problems, warnings: list[str]) -> list[Polyhedr
         p.add("joints", "cutting the domain left no blocks")
         return []
     scale = float(np.ptp(domain.bounds, axis=0).max())
-    grid = DEFAULT_TOLERANCES.length("on_plane", scale) * 1e3
+    grid = DEFAULT_TOLERANCES.lengths(scale).on_plane * 1e3
     c = np.array([b.centroid for b in blocks]) / grid
     order = np.lexsort((np.round(c[:, 0]), np.round(c[:, 1]), np.round(c[:, 2])))
     return [blocks[i] for i in order]
@@ -531,10 +520,11 @@ def build_model(scene: Scene | str | Path | dict[str, Any]) -> BuildResult:
             watch = [k for k, b in enumerate(blocks) if not b.fixed]
         weak = (range(len(jmat_names)) if spec.joint_materials is None
                 else [jmat_names.index(n) for n in spec.joint_materials])
-        fos = FactorOfSafetySettings(
-            spec.tolerance, spec.min_factor, spec.max_factor, spec.observation_time,
-            spec.averaging_start, tuple(sorted(set(weak))), tuple(sorted(set(watch))),
-        )
+        fos = StrengthReductionControls(
+            observation_time=spec.observation_time, window_start=spec.window_start,
+            acceleration_threshold=spec.acceleration_threshold, tolerance=spec.tolerance,
+            min_factor=spec.min_factor, max_factor=spec.max_factor, max_runs=spec.max_runs,
+            joint_materials=tuple(sorted(set(weak))), watch_blocks=tuple(sorted(set(watch))))
     p.raise_if_any()
 
     if all(b.fixed for b in blocks):

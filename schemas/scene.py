@@ -15,6 +15,7 @@ from typing import Annotated, Any, Literal
 
 from pydantic import (
     AfterValidator,
+    AliasChoices,
     BaseModel,
     BeforeValidator,
     ConfigDict,
@@ -23,6 +24,13 @@ from pydantic import (
     model_validator,
 )
 
+from engine.model import (
+    DEFAULT_FRICTION_ANGLE_DEG,
+    AnalysisControls,
+    JointMaterial,
+    Material,
+    StrengthReductionControls,
+)
 from schemas.errors import (
     Problems,
     SceneError,
@@ -34,6 +42,12 @@ from schemas.errors import (
 
 #: version of the scene format; a scene may state it as ``"schema_version"``
 SCHEMA_VERSION = "1.0"
+
+# the engine's defaults are the scene's (one place for each)
+_MATERIAL = Material()
+_JOINT = JointMaterial()
+_CONTROLS = AnalysisControls()
+_FOS = StrengthReductionControls()
 
 
 class Limits:
@@ -105,17 +119,20 @@ def _exactly_one(obj: BaseModel, names: tuple[str, ...]) -> None:
 class MaterialSpec(_Model):
     """Intact rock of the blocks."""
 
-    density: Positive = Field(2600.0, description="kg/m³")
-    young_modulus: Positive = Field(10e9, description="Pa (unused for rigid blocks)")
-    poisson_ratio: PoissonRatio = Field(0.25, description="0 to 0.5 (unused for rigid blocks)")
+    density: Positive = Field(_MATERIAL.density, description="kg/m³")
+    young_modulus: Positive = Field(_MATERIAL.young_modulus,
+                                    description="Pa (unused for rigid blocks)")
+    poisson_ratio: PoissonRatio = Field(_MATERIAL.poisson_ratio,
+                                        description="0 to 0.5 (unused for rigid blocks)")
 
 
 class JointMaterialSpec(_Model):
     """Strength of a joint (and of any contact given this joint material)."""
 
-    friction_angle: FrictionAngle = Field(30.0, description="degrees, 0 to 90")
-    cohesion: NonNegative = Field(0.0, description="Pa")
-    tensile_strength: NonNegative = Field(0.0, description="Pa")
+    friction_angle: FrictionAngle = Field(DEFAULT_FRICTION_ANGLE_DEG,
+                                          description="degrees, 0 to 90")
+    cohesion: NonNegative = Field(_JOINT.cohesion, description="Pa")
+    tensile_strength: NonNegative = Field(_JOINT.tensile_strength, description="Pa")
 
 
 # --------------------------------------------------------------------------- geometry
@@ -160,6 +177,12 @@ class DomainSpec(_Model):
         None, description="m³; smaller cut blocks merge into the neighbour they share the "
                           "largest face with (default: 1/1000 of the median block volume; "
                           "0 keeps every block)"
+    )
+    min_block_width: NonNegative | None = Field(
+        None, description="m; thinner cut blocks (slivers: their thinnest extent across "
+                          "their own faces) merge into the neighbour they share the largest "
+                          "face with (default: 1/10 of the joint sets' median spacing, or of "
+                          "the median block width without sets; 0 keeps them)"
     )
 
     @model_validator(mode="after")
@@ -285,14 +308,24 @@ class FactorOfSafetySpec(_Model):
     """Strength reduction: bisect on F with tan φ_r = tan φ / F (cohesion and tension / F).
 
     A trial fails when the mean acceleration of the watched blocks over
-    [`averaging_start`, `observation_time`] s points along their motion (VALIDATION.md 2.3).
+    [`window_start`, `observation_time`] s exceeds `acceleration_threshold` (VALIDATION.md
+    2.3). `averaging_start` is accepted as the old name of `window_start`.
     """
 
-    tolerance: Positive = Field(0.01, description="stop when the F bracket is this narrow")
-    min_factor: Positive = 0.5
-    max_factor: Positive = 5.0
-    observation_time: Positive = Field(3.0, description="s simulated per trial")
-    averaging_start: NonNegative = Field(1.0, description="s; start of the averaging window")
+    tolerance: Positive = Field(_FOS.tolerance, description="stop when the F bracket is "
+                                                            "this narrow (relative)")
+    min_factor: Positive = Field(_FOS.min_factor, description="smallest F tried")
+    max_factor: Positive = Field(_FOS.max_factor, description="largest F tried")
+    observation_time: Positive = Field(_FOS.observation_time, description="s simulated per "
+                                                                          "trial")
+    window_start: NonNegative = Field(
+        _FOS.window_start, description="s; start of the averaging window",
+        validation_alias=AliasChoices("window_start", "averaging_start"))
+    acceleration_threshold: Positive = Field(
+        _FOS.acceleration_threshold, description="m/s²; a trial whose watched blocks "
+                                                 "accelerate more on average fails")
+    max_runs: Annotated[int, Field(ge=1, le=1000)] = Field(_FOS.max_runs,
+                                                            description="trials at most")
     joint_materials: list[Name] | None = Field(
         None, description="joint materials to weaken (default: all)"
     )
@@ -307,9 +340,9 @@ class FactorOfSafetySpec(_Model):
                 f"max_factor ({fmt_num(self.max_factor)}) must exceed min_factor "
                 f"({fmt_num(self.min_factor)})"
             )
-        if self.averaging_start >= self.observation_time:
+        if self.window_start >= self.observation_time:
             raise ValueError(
-                f"averaging_start ({fmt_num(self.averaging_start)} s) must be before "
+                f"window_start ({fmt_num(self.window_start)} s) must be before "
                 f"observation_time ({fmt_num(self.observation_time)} s)"
             )
         return self
@@ -319,37 +352,45 @@ class AnalysisSpec(_Model):
     """How to run: time, contact penalties, integration mode, block model."""
 
     type: Literal["simulation", "factor_of_safety"] = "simulation"
-    duration: Positive = Field(1.0, description="s simulated")
-    time_step: Positive = Field(1e-3, description="s, initial time step")
-    min_time_step: Positive = Field(1e-7, description="s; the run stops below this")
-    penalty: Positive = Field(1e10, description="N/m, normal stiffness of one contact spring")
-    shear_penalty_ratio: Positive = Field(1.0, description="shear / normal spring stiffness")
+    duration: Positive = Field(_CONTROLS.duration, description="s simulated")
+    time_step: Positive = Field(_CONTROLS.time_step, description="s, initial time step")
+    min_time_step: Positive = Field(_CONTROLS.min_time_step,
+                                    description="s; the run stops below this")
+    penalty: Positive = Field(_CONTROLS.penalty,
+                              description="N/m, normal stiffness of one contact spring")
+    shear_penalty_ratio: Positive = Field(_CONTROLS.shear_penalty_ratio,
+                                          description="shear / normal spring stiffness")
     fixed_point_penalty: Positive | None = Field(None, description="N/m (default: engine's)")
-    record_interval: Annotated[int, Field(ge=1)] = Field(10, description="steps between records")
+    record_interval: Annotated[int, Field(ge=1)] = Field(_CONTROLS.record_interval,
+                                                         description="steps between records")
     mode: Literal["dynamic", "quasi_static"] = Field(
         "dynamic", description="dynamic keeps velocity between steps; quasi_static drops it"
     )
     dynamic_ratio: Ratio01 | None = Field(
         None, description="velocity kept between steps, 0 to 1 (overrides mode)"
     )
-    block_model: Literal["rigid", "elastic"] = "rigid"
+    block_model: Literal["rigid", "elastic"] = _CONTROLS.block_model
     max_displacement_ratio: Annotated[float, Field(gt=0, le=1)] = Field(
-        0.01, description="largest displacement in a step / model size"
+        _CONTROLS.max_displacement_ratio,
+        description="largest displacement in a step / model size"
     )
     max_penetration_ratio: Annotated[float, Field(gt=0, le=1)] = Field(
-        0.25, description="deepest contact penetration / thickness of the thinner block "
+        _CONTROLS.max_penetration_ratio,
+        description="deepest contact penetration / thickness of the thinner block "
                           "in contact; a deeper step is redone with a smaller time step"
     )
     max_open_close_iterations: Annotated[int, Field(ge=1, le=1000)] = Field(
-        20, description="open-close iterations that may change a contact between open and "
+        _CONTROLS.max_open_close_iterations,
+        description="open-close iterations that may change a contact between open and "
                         "closed before the step is redone with a smaller time step"
     )
     open_close_tolerance: Annotated[float, Field(ge=0, le=0.1)] = Field(
-        1e-4, description="open-close hysteresis / largest displacement in a step: an open "
+        _CONTROLS.open_close_tolerance,
+        description="open-close hysteresis / largest displacement in a step: an open "
                           "contact closes only when it penetrates deeper than this (any "
                           "tension opens a closed one)"
     )
-    record_contacts: bool = True
+    record_contacts: bool = _CONTROLS.record_contacts
     factor_of_safety: FactorOfSafetySpec | None = None
 
     @model_validator(mode="after")

@@ -227,19 +227,12 @@ def run_summary(summary: dict[str, Any], build: BuildResult) -> dict[str, Any]:
 
 
 def fos_controls(build: BuildResult) -> StrengthReductionControls:
-    """Strength-reduction controls from the scene's `analysis.factor_of_safety`: times,
-    tolerance, bounds, the weakened joint materials and the watched blocks."""
+    """Strength-reduction controls from the scene's `analysis.factor_of_safety` (built by
+    the schema with the engine's defaults): times, tolerance, bounds, the weakened joint
+    materials and the watched blocks."""
     from engine.analyses import StrengthReductionControls
 
-    s = build.factor_of_safety
-    if s is None:
-        return StrengthReductionControls()
-    return StrengthReductionControls(
-        observation_time=s.observation_time, window_start=s.averaging_start,
-        tolerance=s.tolerance, factor_min=s.min_factor, factor_max=s.max_factor,
-        joint_materials=tuple(s.joint_materials) or None,
-        watch_blocks=tuple(s.watch_blocks) or None,
-    )
+    return build.factor_of_safety or StrengthReductionControls()
 
 
 def fos_document(result: FactorOfSafetyResult, build: BuildResult) -> dict[str, Any]:

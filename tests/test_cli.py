@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import shutil
 import time
 from collections.abc import Callable
 from pathlib import Path
@@ -302,17 +303,25 @@ def test_run_says_when_it_compiles_the_kernels(capsys: pytest.CaptureFixture[str
 
 def test_kernels_cached_looks_for_numbas_index_files(tmp_path: Path,
                                                      monkeypatch: pytest.MonkeyPatch) -> None:
-    """The check finds numba's index file of the narrow phase beside the engine or under
-    NUMBA_CACHE_DIR, and nothing in an empty place."""
+    """The check finds numba's index file of the narrow phase in the cache folder of the
+    current kernel sources (or under NUMBA_CACHE_DIR), and nothing in an empty place or in
+    the folder of other sources."""
     import engine
 
-    monkeypatch.setattr(engine, "__file__", str(tmp_path / "engine" / "__init__.py"))
+    here = tmp_path / "engine"
+    here.mkdir()
+    (here / "_motion_kernels.py").write_text("x = 1\n")
+    monkeypatch.setattr(engine, "__file__", str(here / "__init__.py"))
     monkeypatch.delenv("NUMBA_CACHE_DIR", raising=False)
     assert not engine.kernels_cached()
-    cache = tmp_path / "cache" / "engine"
+    cache = engine.kernel_cache_dir() / "engine"
     cache.mkdir(parents=True)
     (cache / "_detection_kernels.narrow_phase-493.py311.nbi").write_bytes(b"")
+    assert engine.kernels_cached()
+    (here / "_motion_kernels.py").write_text("x = 2\n")  # a kernel changed: compile again
+    assert not engine.kernels_cached()
     monkeypatch.setenv("NUMBA_CACHE_DIR", str(tmp_path / "cache"))
+    shutil.copytree(cache, tmp_path / "cache" / "engine")
     assert engine.kernels_cached()
 
 

@@ -191,7 +191,7 @@ def test_small_corner_blocks_merge_into_neighbours() -> None:
     joints = []
     for tag, (dip, ddir) in enumerate([(45, 135), (45, 315), (75, 45)]):
         joints += joint_set_planes(dip_normal(dip, ddir), [5.0, 5.0, 5.0], 3.4, domain, tag)
-    every = cut_blocks(domain, joints, min_block_volume=0.0)
+    every = cut_blocks(domain, joints, min_block_volume=0.0, min_block_width=0.0)
     merged = cut_blocks(domain, joints)
     check_cut(domain, every)
     check_cut(domain, merged)

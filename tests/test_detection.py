@@ -766,3 +766,33 @@ def test_vertex_beyond_a_convex_edge_is_no_deep_vertex_face_contact():
     check_invariants(c)
     assert len(c) > 0
     assert c.gap.min() > -1e-4
+
+
+def test_no_false_penetration_past_a_narrow_face():
+    """Two cut blocks of a jointed cube (issue 12) that share a face and a corner: the
+    larger one's face next to that corner is a 25 mm strip, so its far edge lies within a
+    50 mm search of the thin block's corner. Measured on that edge's other face plane the
+    corner is 26 mm deep, although the blocks only touch: no contact may be deeper than
+    the pair's shallowest face exit (it was reported, and the run failed at step 1)."""
+    thin = Polyhedron.from_faces(
+        [[2.2198283011366393, 0.08211274048626203, 8.222243632302742],
+         [2.232737713857535, 0.0, 8.178412214523119],
+         [2.370047455242713, 0.0, 8.532916343141787],
+         [3.554449384464093, 0.02474064703098653, 7.228328600977269],
+         [3.5583390028304223, 0.0, 7.215122152992077],
+         [3.5997105588813993, 0.0, 7.321934585085357]],
+        [[2, 1, 4, 5], [4, 1, 0, 3], [5, 4, 3], [0, 1, 2], [2, 5, 3, 0]])
+    thick = Polyhedron.from_faces(
+        [[1.5723360151677324, 0.436044743106106, 6.883145533086392],
+         [1.640889098650257, 0.0, 6.65038677734994],
+         [2.2198283011366393, 0.08211274048626203, 8.222243632302742],
+         [2.232737713857535, 0.0, 8.178412214523119],
+         [2.906957098495185, 0.3786726496508305, 5.889230501760919],
+         [2.9664903876231437, 0.0, 5.687096715818899],
+         [3.554449384464093, 0.02474064703098653, 7.228328600977269],
+         [3.5583390028304223, 0.0, 7.215122152992077]],
+        [[7, 3, 1, 5], [4, 5, 1, 0], [2, 3, 7, 6], [7, 5, 4, 6], [0, 1, 3, 2], [4, 0, 2, 6]])
+    for search in (0.01, 0.05, 0.1, 0.3):
+        c = detect_contacts([thin, thick], search)
+        check_invariants(c)
+        assert len(c) and c.gap.min() > -1e-12, (search, c.gap.min())

@@ -16,6 +16,7 @@ import h5py
 import numpy as np
 import pytest
 
+from engine.motion import current_vertices
 from engine.plots import energy_residual
 from engine.results import ResultWriter, open_result, recover_result
 from engine.simulation import STATUS_COMPLETED, Simulation, run
@@ -34,7 +35,7 @@ def _model(name: str, **controls: object):
 
 
 def _surface_vertices(model, stacked: np.ndarray) -> list[np.ndarray]:
-    """Split `Simulation.current_vertices()` per block, surface vertices only."""
+    """Split `engine.motion.current_vertices` per block, surface vertices only."""
     counts = [len(b.polyhedron.vertices) for b in model.blocks]
     parts = np.split(stacked, np.cumsum(counts)[:-1])
     return [p[b.polyhedron.surface_vertex_ids] for p, b in zip(parts, model.blocks, strict=True)]
@@ -48,18 +49,18 @@ def _surface_vertices(model, stacked: np.ndarray) -> list[np.ndarray]:
 def test_vertices_from_transforms_equal_engine_vertices(
         tmp_path: Path, scene: str, block_model: str, n_steps: int) -> None:
     """At every recorded step, `centroid + affine (X0 - c0)` read back from the file is the
-    engine's own `Simulation.current_vertices()` captured during the run (to 1e-9 m)."""
+    engine's own `engine.motion.current_vertices` captured during the run (to 1e-9 m)."""
     model = _model(scene, block_model=block_model)
     sim = Simulation(model)
     path = tmp_path / "run.h5"
     w = ResultWriter(path)
     w.begin(model)
-    w.record(sim.frame(None, sim.dt))
-    engine = [sim.current_vertices()]
+    w.record(sim.frame())
+    engine = [current_vertices(sim.system, sim.state)]
     for _ in range(n_steps):
         res = sim.step()
-        w.record(sim.frame(res, sim.last_dt))
-        engine.append(sim.current_vertices())
+        w.record(sim.frame(res))
+        engine.append(current_vertices(sim.system, sim.state))
     w.end("completed")
     with open_result(path) as r:
         assert r.n_steps == n_steps + 1

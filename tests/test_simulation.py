@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from engine import simulation
+from engine import contact_step, stepping
 from engine.contacts import OPEN
 from engine.model import (
     AnalysisControls,
@@ -16,6 +16,7 @@ from engine.model import (
     Model,
     PointLoad,
 )
+from engine.motion import current_polyhedra
 from engine.shapes import box, hexahedron, oriented_box
 from engine.simulation import STATUS_COMPLETED, STATUS_FAILED, Simulation, run
 
@@ -228,7 +229,7 @@ def test_spinning_block_keeps_its_volume() -> None:
     sim = Simulation(model)
     while sim.state.time < model.controls.duration - 1e-9:
         sim.step()
-    poly = sim.current_polyhedra()[0]
+    poly = current_polyhedra(sim.system, sim.state)[0]
     assert poly.volume == pytest.approx(1.0, rel=1e-6)
     r0 = np.linalg.norm(blk.vertices - blk.centroid, axis=1)
     r1 = np.linalg.norm(poly.vertices - poly.centroid, axis=1)
@@ -383,11 +384,11 @@ def test_cut_rock_mass_keeps_its_time_step(friction_deg: float) -> None:
         sim.step()
     if friction_deg > 45:
         assert sim.state.time == pytest.approx(0.02, rel=1e-9)
-        assert np.linalg.norm(sim.state.centroid - sim.c0, axis=1).max() < 1e-3
-        assert sim.relaxed_contacts == 0
+        assert np.linalg.norm(sim.state.centroid - sim.system.c0, axis=1).max() < 1e-3
+        assert sim.state.diagnostics.relaxed_contacts == 0
     else:
         assert sim.state.time >= 0.01
-    assert sim.max_penetration < 1e-3
+    assert sim.state.diagnostics.max_penetration < 1e-3
 
 
 @pytest.mark.parametrize(("case", "dt", "penalty"), [
@@ -421,6 +422,20 @@ def test_soft_penalty_is_reported_not_silent() -> None:
 
 
 
+def _searches(monkeypatch: pytest.MonkeyPatch, sim: Simulation) -> list[np.ndarray]:
+    """The search reaches of every detection of `sim` from now on (a list that grows)."""
+    searches: list[np.ndarray] = []
+    detect = contact_step.detect
+
+    def spy(system, state, search=None):  # noqa: ANN001, ANN202
+        if system is sim.system:
+            searches.append(search)
+        return detect(system, state, search)
+
+    monkeypatch.setattr(contact_step, "detect", spy)
+    return searches
+
+
 def test_step_that_outruns_its_predicted_search_is_detected_again(
         monkeypatch: pytest.MonkeyPatch) -> None:
     """A cube thrown down onto a fixed slab with the search prediction made 1000× too
@@ -435,13 +450,11 @@ def test_step_that_outruns_its_predicted_search_is_detected_again(
             joint_materials=[JointMaterial(np.radians(30.0))],
             controls=AnalysisControls(duration=0.1, time_step=0.005, penalty=1e9))
 
-    monkeypatch.setattr(simulation, "SEARCH_SAFETY", 1e-3)
+    monkeypatch.setattr(contact_step, "SEARCH_SAFETY", 1e-3)
+    monkeypatch.setattr(stepping, "SEARCH_SAFETY", 1e-3)
     adaptive = Simulation(model())
-    searches: list[float] = []
-    detect = adaptive.detect
-    adaptive.detect = lambda search=None: searches.append(search) or detect(search)
-    fixed = Simulation(model())
-    fixed.adaptive_search = False
+    searches = _searches(monkeypatch, adaptive)
+    fixed = Simulation(model(), adaptive_search=False)
     closed = 0
     while adaptive.state.time < 0.1 - 1e-12:
         res_a, res_f = adaptive.step(), fixed.step()
@@ -449,11 +462,12 @@ def test_step_that_outruns_its_predicted_search_is_detected_again(
         closed = max(closed, int(np.sum(res_a.contacts.mode != OPEN)))
     assert len(searches) > adaptive.state.step  # steps were searched again
     # a block pair is searched within the sum of its blocks' reaches
-    assert min(float(r.sum()) for r in searches[1:]) < 0.1 * fixed.search_distance
+    assert min(float(r.sum()) for r in searches[1:]) < 0.1 * fixed.system.search_distance
     assert closed == 4  # the cube hit the slab on its face
 
 
-def test_fast_block_widens_only_its_own_search_and_pushes_a_resting_one() -> None:
+def test_fast_block_widens_only_its_own_search_and_pushes_a_resting_one(
+        monkeypatch: pytest.MonkeyPatch) -> None:
     """Without gravity, a large cube flying at 8 m/s hits a small cube at rest face on.
     Before the impact the small cube searches within the floor of its own limit, not
     within the flying cube's; when it is thrown further than its own limit predicted,
@@ -468,15 +482,14 @@ def test_fast_block_widens_only_its_own_search_and_pushes_a_resting_one() -> Non
             controls=AnalysisControls(duration=0.06, time_step=0.002, penalty=1e9))
 
     adaptive = Simulation(model())
-    fixed = Simulation(model())
-    fixed.adaptive_search = False
+    fixed = Simulation(model(), adaptive_search=False)
     adaptive.step()
     fixed.step()
-    reach = adaptive.step_search(adaptive.step_limit(adaptive.dt))
+    s = adaptive.state
+    reach = contact_step.step_search(adaptive.system, s,
+                                     contact_step.step_limit(adaptive.system, s, s.dt))
     assert reach[1] > 10 * reach[0]  # the flying cube looks far, the resting one does not
-    searches: list[np.ndarray] = []
-    detect = adaptive.detect
-    adaptive.detect = lambda search=None: searches.append(search) or detect(search)
+    searches = _searches(monkeypatch, adaptive)
     touched = False
     while adaptive.state.time < 0.06 - 1e-12:
         res_a, res_f = adaptive.step(), fixed.step()

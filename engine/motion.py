@@ -1,0 +1,133 @@
+"""Block motion: where the blocks' points are, how far a step moves them, and the update
+of the state after a converged step (exact rotation, velocities, stresses, energies and the
+contacts' memory for the next step)."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from engine import assembly as asm
+from engine._motion_kernels import block_vertices, move_blocks
+from engine.contacts import LOCKED, OPEN
+from engine.geometry import Polyhedron
+from engine.state import ContactMemory, State, StepResult
+from engine.system import BlockSystem
+
+
+def mass_properties(system: BlockSystem, state: State) -> tuple[np.ndarray, np.ndarray]:
+    """Current volume `(n,)` m³ and second moments `(n, 3, 3)` m⁵ (affine images of the
+    initial ones; computed once per state)."""
+    hit = state.cache.get("mass_properties")
+    if hit is not None:
+        return hit
+    a = state.affine
+    det = np.linalg.det(a)
+    vol = system.volume0 * det
+    second = det[:, None, None] * (a @ system.second0 @ np.transpose(a, (0, 2, 1)))
+    state.cache["mass_properties"] = (vol, second)
+    return vol, second
+
+
+def current_vertices(system: BlockSystem, state: State) -> np.ndarray:
+    """Current positions `(V, 3)` of all blocks' vertices, stacked in block order."""
+    return block_vertices(state.centroid, state.affine, system.vertex_block,
+                          system.vertex_rel0)
+
+
+def current_polyhedra(system: BlockSystem, state: State) -> list[Polyhedron]:
+    """The blocks as polyhedra at the current state."""
+    pts = np.split(current_vertices(system, state), system.vertex_start[1:])
+    return [p.moved(x) for p, x in zip(system.polys0, pts, strict=True)]
+
+
+def map_point(system: BlockSystem, state: State, b: int, point0: np.ndarray) -> np.ndarray:
+    """Current position `(3,)` of the material point of block `b` given at its initial
+    position `point0 (3,)`."""
+    rel0 = (np.asarray(point0, float) - system.c0[b])[None]
+    return block_vertices(state.centroid, state.affine, np.array([b], dtype=np.int64),
+                          rel0)[0]
+
+
+def point_displacements(system: BlockSystem, d: np.ndarray) -> np.ndarray:
+    """Bound `(n,)` m on the largest displacement of any point of each block in a step of
+    block displacements `d (n, 12)`."""
+    trans = np.linalg.norm(d[:, :3], axis=1)
+    rot = np.linalg.norm(d[:, 3:6], axis=1) * system.radius
+    strain = np.abs(d[:, 6:]).max(axis=1) * 2.0 * system.radius
+    return trans + rot + strain
+
+
+def _work(system: BlockSystem, state: State, res: StepResult) -> dict[str, float]:
+    """The energies after the step: works of gravity and loads, and the dissipations."""
+    d = res.d
+    vol, _ = mass_properties(system, state)
+    weight = (system.density * vol)[:, None] * system.gravity[None]
+    e = dict(state.energies)
+    e["gravity_work"] += float(np.sum(weight * d[:, :3]))
+    for b, p0, f in system.loads:
+        t = asm.displacement_matrices(map_point(system, state, b, p0)[None],
+                                      state.centroid[b][None])[0]
+        e["external_work"] += float(f @ (t @ d[b]))
+    e["friction_dissipation"] += res.friction_work
+    e["numerical_dissipation"] += res.numerical_dissipation
+    return e
+
+
+def _memory(system: BlockSystem, res: StepResult) -> ContactMemory:
+    """What the step's contacts carry to the next step: closed contacts, broken ones (stay
+    broken) and open ones pressed in within the open-close hysteresis (their springs start
+    the next step unstretched, see :func:`engine.contact_step.plausible_gaps`)."""
+    cs = res.contacts
+    broken = res.broken if res.broken is not None else np.zeros(len(cs), dtype=bool)
+    keep = (cs.mode != OPEN) | broken | (res.gap1 < 0)
+    slip = res.slip[keep]
+    slip_norm = np.linalg.norm(slip, axis=1)
+    # sliding direction for the next step: this step's slip (paper eq. 7)
+    big = slip_norm > 1e-14 * system.scale
+    tangent = np.where(big[:, None], slip / np.maximum(slip_norm, 1e-300)[:, None],
+                       cs.tangent[keep])
+    # a contact that slid or ended open has lost its bond (cohesion, tensile strength)
+    return ContactMemory(key=cs.key[keep], mode=cs.mode[keep], shear=res.shear[keep],
+                         tangent=tangent, broken=broken[keep] | (cs.mode[keep] != LOCKED),
+                         gap=res.gap1[keep])
+
+
+def _penetrations(system: BlockSystem, state: State, res: StepResult) -> np.ndarray:
+    """Each block's deepest contact penetration at the end of the step `(n,)` m (what the
+    next step's search must reach), and the run's deepest penetrations updated."""
+    cs, gap = res.contacts, res.gap1
+    deepest = np.zeros(system.n)
+    if len(gap):
+        depth = np.maximum(-gap, 0.0)
+        np.maximum.at(deepest, cs.block_i, depth)
+        np.maximum.at(deepest, cs.block_j, depth)
+    diag = state.diagnostics
+    closed = cs.mode != OPEN
+    diag.max_penetration = max(diag.max_penetration,
+                               float(np.max(-gap[closed], initial=0.0)))
+    if np.any(closed):
+        thin = np.minimum(system.thickness[cs.block_i], system.thickness[cs.block_j])
+        ratio = float(np.max(-gap[closed] / thin[closed], initial=0.0))
+        diag.max_penetration_ratio = max(diag.max_penetration_ratio, ratio)
+    return deepest
+
+
+def advance(system: BlockSystem, state: State, res: StepResult, dt: float) -> State:
+    """The state after the converged step `res` of `dt` s: blocks moved with the exact
+    rotation, velocities `2 d / Δt − v0` (times the dynamic ratio), stresses, energies,
+    the contacts' memory and the time (`dt` and `last_dt` are the caller's)."""
+    d = res.d
+    centroid, affine, rotation = state.centroid.copy(), state.affine.copy(), \
+        state.rotation.copy()
+    move_blocks(d, centroid, affine, rotation)
+    v1 = 2.0 * d / dt - state.velocity
+    v1[system.fixed] = 0.0
+    stress = state.stress
+    if system.elastic:
+        stress = stress + np.einsum("nij,nj->ni", system.emat, d[:, 6:])
+    return State(
+        centroid=centroid, affine=affine, rotation=rotation,
+        velocity=system.controls.dynamic_ratio * v1, stress=stress, time=state.time + dt,
+        step=state.step + 1, dt=state.dt, last_dt=state.last_dt, memory=_memory(system, res),
+        last_d=d, deepest=_penetrations(system, state, res),
+        energies=_work(system, state, res), diagnostics=state.diagnostics)

@@ -1,0 +1,113 @@
+"""Time-step control (THEORY.md "One step", 3): the Δt and displacement limits of a step's
+attempts, the checks of a converged step (displacement limit, penetration), the cut of Δt
+when an attempt fails, and its growth after easy steps."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from engine.contact_step import SEARCH_SAFETY, step_limit, step_search
+from engine.contacts import OPEN
+from engine.motion import point_displacements
+from engine.state import State, StepResult
+from engine.status import StepFailure
+from engine.system import BlockSystem
+
+#: time-step cut factor when a step fails, and growth factor after easy steps
+DT_CUT = 0.3
+DT_GROW = 1.5
+
+
+class SearchWider(Exception):
+    """Blocks moved further than their limit predicted: detect again, wider, same Δt."""
+
+
+@dataclass
+class Attempt:
+    """One attempt at a step: its time step `dt` s and each block's displacement limit
+    `limit (n,)` m (what its contact search covers)."""
+
+    dt: float
+    limit: np.ndarray
+
+
+def _allowed(system: BlockSystem, state: State, dt: float, reason: str) -> None:
+    """StepFailure when `dt` is below the smallest allowed time step."""
+    if dt < system.controls.min_time_step:
+        raise StepFailure(
+            f"step {state.step + 1} at t = {state.time:.6g} s did not converge even at the "
+            f"smallest time step {system.controls.min_time_step:g} s: {reason}", "time_step")
+
+
+def first_attempt(system: BlockSystem, state: State) -> Attempt:
+    """The step's first attempt: the state's Δt (the rest of the run at most)."""
+    remaining = system.controls.duration - state.time
+    dt = min(state.dt, remaining) if remaining > 0 else state.dt
+    _allowed(system, state, dt, "")
+    return Attempt(dt, step_limit(system, state, dt))
+
+
+def reach(system: BlockSystem, state: State, attempt: Attempt) -> np.ndarray:
+    """Each block's contact search reach `(n,)` m for the attempt."""
+    return step_search(system, state, attempt.limit)
+
+
+def check(system: BlockSystem, res: StepResult, attempt: Attempt) -> None:
+    """The converged step keeps its limits: blocks that moved further than predicted (but
+    within the model's step limit) raise SearchWider after widening `attempt.limit`; beyond
+    the model's limit, or a contact deeper than its share of the thinner block, StepFailure."""
+    disp = point_displacements(system, res.d)
+    limit = attempt.limit
+    over = disp > limit
+    wider = over & (limit < system.max_step_displacement)
+    if np.any(wider):
+        attempt.limit = np.where(wider, np.minimum(np.maximum(SEARCH_SAFETY * disp, 2.0 * limit),
+                                                   system.max_step_displacement), limit)
+        raise SearchWider
+    if np.any(over):
+        b = int(np.argmax(disp - limit))
+        raise StepFailure(f"largest displacement {disp[b]:.3g} m (block {b}) exceeds the step "
+                          f"limit {limit[b]:.3g} m", "displacement")
+    check_penetration(system, res)
+
+
+def check_penetration(system: BlockSystem, res: StepResult) -> None:
+    """StepFailure if a closed contact penetrates deeper than its allowed share
+    (`max_penetration_ratio`) of the thinner of its two blocks: nothing tunnels."""
+    cs = res.contacts
+    if not len(cs):
+        return
+    limit = system.controls.max_penetration_ratio * np.minimum(
+        system.thickness[cs.block_i], system.thickness[cs.block_j])
+    excess = np.where(cs.mode != OPEN, -res.gap1 - limit, -np.inf)
+    k = int(np.argmax(excess))
+    if excess[k] > 0:
+        raise StepFailure(
+            f"penetration {-res.gap1[k]:.3g} m between blocks {cs.block_i[k]} and "
+            f"{cs.block_j[k]} exceeds the limit {limit[k]:.3g} m", "penetration")
+
+
+def cut(system: BlockSystem, state: State, attempt: Attempt, exc: StepFailure) -> Attempt:
+    """The next attempt after `exc`: Δt × DT_CUT with the same limits (the contacts found
+    for the larger step cover it); counted by reason in the state's diagnostics.
+    StepFailure below the smallest allowed time step."""
+    cuts = state.diagnostics.cuts
+    cuts[exc.reason] = cuts.get(exc.reason, 0) + 1
+    dt = attempt.dt * DT_CUT
+    _allowed(system, state, dt, str(exc))
+    return Attempt(dt, attempt.limit)
+
+
+def next_time_step(system: BlockSystem, before: State, res: StepResult, dt: float) -> float:
+    """The Δt the next step tries after a step of `dt` s from `before`: a cut is kept
+    (unless it only shortened the run's last step), and Δt grows back by DT_GROW after easy
+    steps (at most half the allowed open/closed changes)."""
+    c = system.controls
+    remaining = c.duration - before.time
+    if dt < before.dt and dt < remaining:
+        return dt
+    if res.mode_changes <= c.max_open_close_iterations // 2:
+        return min(c.time_step, before.dt * DT_GROW)
+    return before.dt
