@@ -11,6 +11,7 @@ first, named `prefix`1, 2, ...), then explicit blocks in the order given.
 
 from __future__ import annotations
 
+import re
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -164,6 +165,15 @@ def _joint_planes(scene: Scene, domain: Polyhedron, p: Problems) -> list[JointPl
     return planes
 
 
+def _name_joints(text: str, scene: Scene) -> str:
+    """An engine warning with its joint tags named as errors name joints
+    (`joint 0` -> `joints[0] ('J1')`; the engine's internal plane numbers dropped)."""
+    text = re.sub(r" \(joint plane \d+\)", "", text)
+    return re.sub(r"\bjoint (\d+)\b",
+                  lambda m: f"joints[{m.group(1)}] ('{scene.joint_name(int(m.group(1)))}')",
+                  text)
+
+
 def _cut_domain(scene: Scene, p: Problems, warnings: list[str]) -> list[Polyhedron]:
     """The blocks cut from the domain, sorted by centroid z, y, x (empty if no domain)."""
     d = scene.domain
@@ -189,6 +199,7 @@ def _cut_domain(scene: Scene, p: Problems, warnings: list[str]) -> list[Polyhedr
     result = cut_blocks(domain, planes, min_block_volume=d.min_block_volume,
                         min_block_width=d.min_block_width)
     for w in result.warnings:
+        w = _name_joints(w, scene)
         if w not in warnings:
             warnings.append(w)
     blocks = list(result.blocks)

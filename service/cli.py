@@ -20,19 +20,28 @@ from typing import Any
 
 import numpy as np
 
-from engine.analyses import StrengthReductionControls, TrialRun, factor_of_safety
-from engine.geometry import Polyhedron
+from engine.analyses import TrialRun, factor_of_safety
 from engine.results import ResultWriter
 from engine.simulation import STATUS_COMPLETED, Progress, run
 from schemas.convert import BuildResult, build_model
 from schemas.errors import SceneError
 from schemas.scene import SCHEMA_VERSION, scene_json_schema
+from service.documents import (
+    SEARCH_DISTANCE_RATIO,
+    blocks_document,
+    fos_controls,
+    fos_document,
+    run_summary,
+    scene_contacts_document,
+    surface,
+    write_json_atomic,
+)
+from service.processes import PROCESS_IDS
 from service.worker import add_arguments as worker_options
 
-EXIT_OK, EXIT_IO, EXIT_SCENE, EXIT_RUN = 0, 1, 2, 3
+__all__ = ["SEARCH_DISTANCE_RATIO", "build_parser", "fos_controls", "main"]
 
-#: default contact search distance for `polydda contacts`, as a fraction of the model size
-SEARCH_DISTANCE_RATIO = 1e-3
+EXIT_OK, EXIT_IO, EXIT_SCENE, EXIT_RUN = 0, 1, 2, 3
 
 
 # --------------------------------------------------------------------------- helpers
@@ -49,25 +58,14 @@ def _scene_failed(exc: SceneError) -> int:
     return EXIT_SCENE
 
 
-def _load(path: str) -> BuildResult:
-    """Build the scene at `path` (SceneError on any problem); warnings go to stderr."""
+def _load(path: str, quiet: bool = False) -> BuildResult:
+    """Build the scene at `path` (SceneError on any problem); warnings go to stderr (unless
+    `quiet`: a --json document carries them)."""
     result = build_model(Path(path))
-    for w in result.warnings:
-        print(f"warning: {w}", file=sys.stderr)
+    if not quiet:
+        for w in result.warnings:
+            print(f"warning: {w}", file=sys.stderr)
     return result
-
-
-def surface(poly: Polyhedron) -> tuple[np.ndarray, list[list[int]]]:
-    """The surface vertices `(k, 3)` and faces re-indexed to them (seam points dropped)."""
-    used = poly.surface_vertex_ids
-    remap = np.full(len(poly.vertices), -1, dtype=np.int64)
-    remap[used] = np.arange(len(used))
-    return poly.vertices[used], [remap[f].tolist() for f in poly.faces]
-
-
-def _r(x: np.ndarray | float, digits: int = 9) -> Any:
-    """Rounded plain-Python numbers for JSON (no -0.0)."""
-    return (np.round(np.asarray(x, float), digits) + 0.0).tolist()
 
 
 # --------------------------------------------------------------------------- export
@@ -142,19 +140,7 @@ def cmd_blocks(args: argparse.Namespace) -> int:
             print(f"--export: cannot write {out}: {exc.strerror or exc}", file=sys.stderr)
             return EXIT_IO
     if args.json:
-        docs = []
-        for name, b in zip(result.block_names, blocks, strict=True):
-            verts, faces = surface(b.polyhedron)
-            docs.append({
-                "name": name,
-                "volume": float(b.polyhedron.volume),
-                "centroid": _r(b.polyhedron.centroid),
-                "concave": not b.polyhedron.is_convex,
-                "fixed": bool(b.fixed),
-                "vertices": _r(verts),
-                "faces": faces,
-            })
-        _print_json({"blocks": docs})
+        _print_json(blocks_document(result))
         return EXIT_OK
     width = max([len(n) for n in result.block_names] + [5])
     print(f"{len(blocks)} block{'s' if len(blocks) != 1 else ''}")
@@ -172,37 +158,14 @@ def cmd_blocks(args: argparse.Namespace) -> int:
 
 def cmd_contacts(args: argparse.Namespace) -> int:
     """The contact constraints of the scene as given (before any step)."""
-    from engine.contacts import KIND_NAMES, MODE_NAMES
-    from engine.detection import detect_contacts
-
     result = _load(args.scene)
-    model = result.model
     if args.search_distance is not None and not args.search_distance > 0:
         print("--search-distance: must be positive", file=sys.stderr)
         return EXIT_SCENE
-    search = (args.search_distance if args.search_distance is not None
-              else SEARCH_DISTANCE_RATIO * model.scale)
-    active = np.array([not b.fixed for b in model.blocks], dtype=bool)
-    cs = detect_contacts([b.polyhedron for b in model.blocks], search, active=active)
-    names = result.block_names
-    rows = []
-    for k in range(len(cs)):
-        tag = int(cs.face_tag[k])
-        rows.append({
-            "block_i": names[int(cs.block_i[k])],
-            "block_j": names[int(cs.block_j[k])],
-            "type": KIND_NAMES[int(cs.kind[k])],
-            "point_i": _r(cs.point_i[k]),
-            "point_j": _r(cs.point_j[k]),
-            "normal": _r(cs.normal[k]),
-            "tangent": _r(cs.tangent[k]),
-            "mode": MODE_NAMES[int(cs.mode[k])],
-            "penetration": float(max(0.0, -cs.gap[k])),
-            "gap": float(cs.gap[k]),
-            "joint": result.joint_names[tag] if 0 <= tag < len(result.joint_names) else None,
-        })
+    doc = scene_contacts_document(result, args.search_distance)
+    rows, search = doc["contacts"], doc["search_distance"]
     if args.json:
-        _print_json({"search_distance": search, "count": len(rows), "contacts": rows})
+        _print_json(doc)
         return EXIT_OK
     print(f"{len(rows)} contact constraint{'s' if len(rows) != 1 else ''} "
           f"(search distance {search:.3g} m)")
@@ -221,11 +184,22 @@ def cmd_schema(args: argparse.Namespace) -> int:
 
 
 def cmd_validate(args: argparse.Namespace) -> int:
-    """Check a scene completely (including cutting and overlaps); print `ok` or the problems."""
-    result = _load(args.scene)
-    n = len(result.model.blocks)
-    print(f"ok: {n} block{'s' if n != 1 else ''}, "
-          f"{sum(b.fixed for b in result.model.blocks)} fixed")
+    """Check a scene completely (including cutting and overlaps); print `ok` or the problems
+    (with --json: one document `{"valid", "blocks", "fixed", "warnings", "problems"}`)."""
+    if not args.json:
+        result = _load(args.scene)
+        n = len(result.model.blocks)
+        print(f"ok: {n} block{'s' if n != 1 else ''}, "
+              f"{sum(b.fixed for b in result.model.blocks)} fixed")
+        return EXIT_OK
+    try:
+        result = build_model(Path(args.scene))
+    except SceneError as exc:
+        _print_json({"valid": False, "problems": exc.problems})
+        return EXIT_SCENE
+    _print_json({"valid": True, "blocks": len(result.model.blocks),
+                 "fixed": sum(b.fixed for b in result.model.blocks),
+                 "warnings": result.warnings, "problems": []})
     return EXIT_OK
 
 
@@ -255,16 +229,9 @@ class _ProgressPrinter:
               file=sys.stderr, flush=True)
 
 
-def _named_summary(summary: dict[str, Any], names: list[str]) -> dict[str, Any]:
-    """The run summary with the scene's block names."""
-    for b, name in zip(summary.get("blocks", []), names, strict=False):
-        b["name"] = name
-    return summary
-
-
 def cmd_run(args: argparse.Namespace) -> int:
     """Run the scene's simulation; write the HDF5 result and optionally a JSON summary."""
-    built = _load(args.scene)
+    built = _load(args.scene, quiet=args.json)
     scene_text = Path(args.scene).read_text(encoding="utf-8")
     out = Path(args.out)
     try:
@@ -274,19 +241,22 @@ def cmd_run(args: argparse.Namespace) -> int:
     except OSError as exc:
         print(f"cannot write {out}: {exc}", file=sys.stderr)
         return EXIT_IO
-    printer = None if args.quiet else _ProgressPrinter(Path(args.scene).stem)
+    printer = None if args.quiet or args.json else _ProgressPrinter(Path(args.scene).stem)
     if printer is not None:
         _note_compilation()
     res = run(built.model, recorder=writer, progress=printer, scene_json=scene_text)
     if printer is not None and printer.tty:
         print(file=sys.stderr)
-    summary = _named_summary(res.summary, built.block_names)
+    summary = run_summary(res.summary, built)
     if args.summary:
         try:
-            _write_json_atomic(Path(args.summary), summary)
+            write_json_atomic(Path(args.summary), summary)
         except OSError as exc:
             print(f"cannot write {args.summary}: {exc}", file=sys.stderr)
             return EXIT_IO
+    if args.json:
+        _print_json(summary | {"result": str(out)})
+        return EXIT_OK if res.status == STATUS_COMPLETED else EXIT_RUN
     print(f"{res.status}: {res.steps} steps, {res.state.time:.6g} s simulated in "
           f"{res.wall_time:.3g} s; max penetration {res.max_penetration:.3g} m; "
           f"result {out}", file=sys.stderr)
@@ -306,19 +276,6 @@ def _note_compilation() -> None:
               "takes about a minute longer (they are cached afterwards)", file=sys.stderr)
 
 
-def _write_json_atomic(path: Path, doc: Any) -> None:
-    """Write JSON to `path` via a temporary file and a rename (never half-written)."""
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(path.name + ".tmp")
-    tmp.write_text(json.dumps(doc, indent=2, allow_nan=False) + "\n", encoding="utf-8")
-    os.replace(tmp, path)
-
-
-def fos_controls(built: BuildResult) -> StrengthReductionControls:
-    """Strength-reduction controls from the scene's `analysis.factor_of_safety`."""
-    return built.factor_of_safety or StrengthReductionControls()
-
-
 def cmd_fos(args: argparse.Namespace) -> int:
     """Factor of safety by strength reduction (bisection on tan φ / F)."""
     built = _load(args.scene)
@@ -332,7 +289,7 @@ def cmd_fos(args: argparse.Namespace) -> int:
     if not args.quiet:
         _note_compilation()
     result = factor_of_safety(built.model, fos_controls(built), progress=note)
-    doc = result.as_dict()
+    doc = fos_document(result, built)
     if args.json:
         _print_json(doc)
     else:
@@ -363,6 +320,9 @@ def cmd_plot(args: argparse.Namespace) -> int:
     except ValueError as exc:
         print(f"--time / --step: not a number: {exc}", file=sys.stderr)
         return EXIT_SCENE
+    if not Path(args.result).is_file():
+        print(f"polydda plot: no such result file: {args.result}", file=sys.stderr)
+        return EXIT_IO
     try:
         result = open_result(args.result)
     except (OSError, KeyError, ValueError) as exc:
@@ -392,11 +352,11 @@ def cmd_plot(args: argparse.Namespace) -> int:
 
 
 def cmd_serve(args: argparse.Namespace) -> int:
-    """Start the REST API with its embedded workers (or the RQ backend, by settings)."""
+    """Start the REST API with its embedded workers (or the RQ backend, by settings); exit
+    code 1 when another server owns the data directory."""
     from service.app import serve
 
-    serve(args.host, args.port)
-    return EXIT_OK
+    return serve(args.host, args.port)
 
 
 def cmd_worker(args: argparse.Namespace) -> int:
@@ -408,11 +368,17 @@ def cmd_worker(args: argparse.Namespace) -> int:
 
 def cmd_submit(args: argparse.Namespace) -> int:
     """Submit a scene to a running server; with --wait, follow it to the end."""
-    from service.client import ServiceError, print_status, submit
+    from service.client import ServiceError, Unreachable, print_status, submit
 
+    if not Path(args.scene).is_file():
+        print(f"polydda submit: no such scene file: {args.scene}", file=sys.stderr)
+        return EXIT_IO
     try:
         doc = submit(args.url, args.scene, wait=args.wait, process=args.process,
-                     api_key=args.api_key, on_status=print_status)
+                     api_key=args.api_key, on_status=print_status, retries=args.retries)
+    except Unreachable as exc:
+        print(f"polydda submit: {exc}", file=sys.stderr)
+        return EXIT_IO
     except ServiceError as exc:
         print(str(exc), file=sys.stderr)
         return EXIT_SCENE
@@ -436,6 +402,7 @@ def build_parser() -> argparse.ArgumentParser:
     """The argparse parser with one subparser per command (`func` set to its cmd_*)."""
     parser = _Parser(prog="polydda",
                      description="3-D Discontinuous Deformation Analysis of rock blocks")
+    parser.add_argument("--version", action="version", version=f"polydda {_version()}")
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND",
                                 parser_class=_Parser)
 
@@ -455,6 +422,8 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser("validate", help="check a scene and report every problem")
     p.add_argument("scene", help="scene JSON file")
+    p.add_argument("--json", action="store_true",
+                   help="print one JSON document (valid, blocks, warnings, problems)")
     p.set_defaults(func=cmd_validate)
 
     p = sub.add_parser("run", help="run the simulation of a scene")
@@ -462,6 +431,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--out", required=True, metavar="RESULT.h5", help="HDF5 result file")
     p.add_argument("--summary", metavar="SUMMARY.json", help="also write a JSON summary")
     p.add_argument("--quiet", action="store_true", help="no progress output")
+    p.add_argument("--json", action="store_true",
+                   help="print the summary as one JSON document (no progress output)")
     p.set_defaults(func=cmd_run)
 
     p = sub.add_parser("fos", help="factor of safety by strength reduction")
@@ -498,14 +469,31 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("submit", help="submit a scene to a running server")
     p.add_argument("scene", help="scene JSON file")
     p.add_argument("--url", default="http://127.0.0.1:8000", help="server URL")
-    p.add_argument("--process", help="simulation, factor-of-safety or block-cutting")
+    p.add_argument("--process", choices=PROCESS_IDS,
+                   help="default: from the scene's analysis.type")
     p.add_argument("--api-key", help="API key, if the server requires one")
     p.add_argument("--wait", action="store_true", help="follow the job to its end")
+    p.add_argument("--retries", type=int, default=5, metavar="N",
+                   help="retries of a submission answered 429 / 503 or cut off, after the "
+                        "server's Retry-After (same Idempotency-Key: never two jobs; "
+                        "default 5)")
     p.set_defaults(func=cmd_submit)
 
     p = sub.add_parser("schema", help="print the JSON Schema of the scene format")
     p.set_defaults(func=cmd_schema)
     return parser
+
+
+def _version() -> str:
+    """The installed package's version (the source tree's when not installed)."""
+    from importlib.metadata import PackageNotFoundError, version
+
+    try:
+        return version("polydda")
+    except PackageNotFoundError:
+        from service.app import VERSION
+
+        return VERSION
 
 
 def main(argv: Sequence[str] | None = None) -> int:

@@ -1,7 +1,8 @@
 """Service settings: one pydantic-settings object, read from `POLYDDA_*` environment variables.
 
 Example: `POLYDDA_DATA_DIR=/data POLYDDA_BACKEND=rq POLYDDA_REDIS_URL=redis://redis:6379/0`.
-`POLYDDA_API_KEYS` is a comma-separated list (empty: no key needed).
+`POLYDDA_API_KEYS`, `POLYDDA_ADMIN_KEYS` and `POLYDDA_CORS_ORIGINS` are comma-separated
+lists (empty API keys: no key needed, and every client sees only the jobs of its address).
 """
 
 from __future__ import annotations
@@ -35,7 +36,32 @@ class Settings(BaseSettings):
     max_duration: float = Field(3600.0, gt=0, description="largest simulated duration (s)")
     max_steps: int = Field(5_000_000, ge=1, description="largest duration / time_step")
     api_keys: Annotated[frozenset[str], NoDecode] = Field(
-        frozenset(), description="accepted X-API-Key values; empty: keys are not checked")
+        frozenset(), description="accepted X-API-Key values; empty: keys are not checked. A "
+                                 "job belongs to the key that created it; other keys get 404")
+    admin_keys: Annotated[frozenset[str], NoDecode] = Field(
+        frozenset(), description="keys that see, download and dismiss every job (also "
+                                 "accepted as API keys); empty: no admin")
+    rate_limit: float = Field(0.0, ge=0, description="requests per second per client "
+                                                     "(API key or address); 0: no limit")
+    rate_burst: int = Field(20, ge=1, description="requests a client may send at once "
+                                                  "above its rate")
+    cors_origins: Annotated[tuple[str, ...], NoDecode] = Field(
+        (), description="origins browsers may call the API from ('*' for any); empty: no "
+                        "CORS headers")
+    retention: float = Field(30 * 24 * 3600.0, ge=0,
+                             description="s a finished job and its files are kept after it "
+                                         "ended; 0: forever")
+    min_free_bytes: int = Field(1 << 30, ge=0,
+                                description="new jobs are refused (507) when the data "
+                                            "directory's disk has less free space than this")
+    keep_alive: float = Field(
+        75.0, gt=0, description="s an idle HTTP connection stays open; longer than any "
+                                "Retry-After the API sends, so a client that waits as "
+                                "told reuses a live connection")
+    rq_heartbeat_ttl: float = Field(
+        10.0, gt=0, description="RQ: s a job's heartbeat lives; a job whose worker stopped "
+                                "beating is re-queued (or failed after max_attempts) this "
+                                "long after its last beat")
     client_quota: int = Field(16, ge=1,
                               description="unfinished (accepted or running) jobs per client")
     worker_threads: int = Field(1, ge=1, description="OMP/BLAS threads of a job process")
@@ -44,15 +70,28 @@ class Settings(BaseSettings):
     cancel_grace: float = Field(1.0, ge=0,
                                 description="s a cancelled job may take before it is killed")
     max_attempts: int = Field(2, ge=1,
-                              description="runs of a job interrupted by a service restart")
+                              description="runs of a job whose worker or service was lost "
+                                          "while it ran (then it fails, kind system)")
     job_timeout: int = Field(7 * 24 * 3600, ge=1, description="RQ job timeout (s)")
 
-    @field_validator("api_keys", mode="before")
+    @field_validator("api_keys", "admin_keys", mode="before")
     @classmethod
     def _split_keys(cls, value: Any) -> Any:
         if isinstance(value, str):
             return frozenset(k.strip() for k in value.split(",") if k.strip())
         return value
+
+    @field_validator("cors_origins", mode="before")
+    @classmethod
+    def _split_origins(cls, value: Any) -> Any:
+        if isinstance(value, str):
+            return tuple(o.strip() for o in value.split(",") if o.strip())
+        return value
+
+    @property
+    def keys_required(self) -> bool:
+        """True when requests need an X-API-Key (API or admin keys are configured)."""
+        return bool(self.api_keys or self.admin_keys)
 
     @property
     def db_path(self) -> Path:

@@ -45,7 +45,7 @@ def test_blocks_json(capsys: pytest.CaptureFixture[str]) -> None:
     code, out, _ = run(capsys, "blocks", WEDGE, "--json")
     assert code == 0
     doc = json.loads(out)
-    assert list(doc) == ["blocks"]
+    assert list(doc) == ["blocks", "count", "total_volume", "warnings"]  # as the API's
     blocks = doc["blocks"]
     assert [b["name"] for b in blocks] == ["B1", "B2"]
     for b in blocks:
@@ -282,7 +282,8 @@ def test_plot_chooses_blocks_and_snapshot_times(capsys: pytest.CaptureFixture[st
         assert code == 2 and out == "" and message in err, (args, err)
     assert not (tmp_path / "bad").exists()
     code, _, err = run(capsys, "plot", str(tmp_path / "missing.h5"))
-    assert code == 1 and "cannot plot" in err
+    # one line that says what is wrong, not the HDF5 library's message
+    assert code == 1 and err == f"polydda plot: no such result file: {tmp_path / 'missing.h5'}\n"
 
 
 def test_run_says_when_it_compiles_the_kernels(capsys: pytest.CaptureFixture[str],
@@ -322,3 +323,45 @@ def test_kernels_cached_looks_for_numbas_index_files(tmp_path: Path,
     monkeypatch.setenv("NUMBA_CACHE_DIR", str(tmp_path / "cache"))
     shutil.copytree(cache, tmp_path / "cache" / "engine")
     assert engine.kernels_cached()
+
+
+def test_version_and_json_documents(capsys: pytest.CaptureFixture[str],
+                                    tmp_path: Path) -> None:
+    """`--version`; `validate --json` and `run --json` print one document (problems too)."""
+    code, out, _ = run(capsys, "--version")
+    assert code == 0 and out.strip() == "polydda 0.1.0"
+    code, out, err = run(capsys, "validate", WEDGE, "--json")
+    assert code == 0 and err == ""
+    assert json.loads(out) == {"valid": True, "blocks": 2, "fixed": 1, "warnings": [],
+                               "problems": []}
+    scene = json.loads(Path(WEDGE).read_text())
+    scene["joint_materials"]["joint"]["friction_angle"] = 95
+    code, out, err = run(capsys, "validate", write_scene(tmp_path, scene), "--json")
+    doc = json.loads(out)
+    assert code == 2 and doc["valid"] is False and err == ""
+    assert doc["problems"][0]["loc"] == "joint_materials.joint.friction_angle"
+    incline = json.loads((Path(WEDGE).parent / "incline.json").read_text())
+    incline["analysis"].update(duration=0.05, time_step=0.01)
+    out_h5 = tmp_path / "incline.h5"
+    code, out, err = run(capsys, "run", write_scene(tmp_path, incline), "--out", str(out_h5),
+                         "--json")
+    doc = json.loads(out)
+    assert code == 0 and doc["status"] == "completed" and doc["result"] == str(out_h5)
+    assert doc["block_names"] == ["cube", "slab"] and doc["warnings"] == []
+    assert "step" not in err  # no progress lines with --json
+
+
+def test_submit_to_an_absent_server_says_so_in_one_line(capsys: pytest.CaptureFixture[str]
+                                                        ) -> None:
+    import socket
+
+    with socket.socket() as s:  # a port nobody listens on
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    code, out, err = run(capsys, "submit", WEDGE, "--url", f"http://127.0.0.1:{port}")
+    assert code == 1 and out == ""
+    assert len(err.splitlines()) == 1 and "Traceback" not in err
+    assert err.startswith(f"polydda submit: cannot reach the PolyDDA server at "
+                          f"http://127.0.0.1:{port}")
+    code, _, err = run(capsys, "submit", "no-such-scene.json")
+    assert code == 1 and err == "polydda submit: no such scene file: no-such-scene.json\n"

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import os
 import statistics
 import subprocess
 import threading
@@ -222,3 +223,73 @@ def test_docker_files_run_the_commands_these_tests_run() -> None:
         assert variables["POLYDDA_REDIS_URL"].startswith("redis://redis:")
         assert variables["POLYDDA_DATA_DIR"] == "/data"
         assert services[name]["volumes"] == ["results:/data"]
+
+
+def test_a_second_server_on_the_same_data_directory_is_refused(tmp_path: Path) -> None:
+    """The second `polydda serve` on a data directory exits at once with one line; the
+    first's running job goes on undisturbed (it used to be killed as stale and run again)."""
+    data = tmp_path / "data"
+    with Server(data) as first, httpx.Client(base_url=first.url, timeout=30) as c:
+        url = c.post("/jobs", json=cube_scene(duration=60)).headers["Location"]
+        wait_until(lambda: (c.get(url).json()["step"] or 0) >= 5, 60, "the job to run")
+        job_id = url.rsplit("/", 1)[1]
+        pid = job_row(data, job_id)["worker_pid"]
+        second = Server(data)
+        done = subprocess.run(serve_command("127.0.0.1", second.port), env=second.env,
+                              cwd=tmp_path, capture_output=True, text=True, timeout=60)
+        assert done.returncode == 1, done.stderr
+        lines = done.stderr.strip().splitlines()
+        assert lines == [f"polydda serve: the data directory {data} is in use by another "
+                         f"PolyDDA server (pid {first.proc.pid} on {os.uname().nodename}); "
+                         "stop it first, or give this one its own POLYDDA_DATA_DIR"], lines
+        step = c.get(url).json()["step"]
+        wait_until(lambda: c.get(url).json()["step"] > step, 10, "the job to go on")
+        doc = c.get(url).json()
+        assert doc["status"] == "running" and doc["attempts"] == 1, doc
+        assert pid_alive(pid) and job_row(data, job_id)["worker_pid"] == pid
+        assert c.delete(url).json()["status"] == "dismissed"
+    with Server(data) as again:  # the lock goes with its server
+        assert httpx.get(f"{again.url}/jobs/{job_id}").json()["status"] == "dismissed"
+
+
+def test_an_idle_connection_outlives_retry_after(tmp_path: Path) -> None:
+    """A client that waits the 429's Retry-After reuses its connection: the server keeps
+    idle connections 75 s (uvicorn's default 5 s equalled Retry-After: 5, and the reuse
+    raced the close)."""
+    import http.client
+
+    with Server(tmp_path / "data", POLYDDA_CLIENT_QUOTA="1") as srv:
+        conn = http.client.HTTPConnection("127.0.0.1", srv.port, timeout=30)
+        body = json.dumps(cube_scene(duration=60))
+        headers = {"Content-Type": "application/json"}
+        conn.request("POST", "/jobs", body, headers)
+        first = conn.getresponse()
+        url = first.getheader("Location")
+        first.read()
+        conn.request("POST", "/jobs", body, headers)
+        refused = conn.getresponse()
+        refused.read()
+        assert refused.status == 429
+        wait = float(refused.getheader("Retry-After"))
+        sock = conn.sock
+        time.sleep(wait + 0.5)
+        conn.request("DELETE", url)  # the same connection, after the advised wait
+        r = conn.getresponse()
+        r.read()
+        assert r.status in (200, 202) and conn.sock is sock
+        conn.close()
+
+
+def test_a_client_that_disconnects_mid_body_is_no_internal_error(tmp_path: Path) -> None:
+    import socket
+
+    with Server(tmp_path / "data") as srv:
+        with socket.create_connection(("127.0.0.1", srv.port)) as s:
+            s.sendall(b"POST /jobs HTTP/1.1\r\nHost: x\r\nContent-Type: application/json\r\n"
+                      b"Content-Length: 100000\r\n\r\n" + b'{"blocks": [' + b" " * 1000)
+            time.sleep(0.3)
+        time.sleep(0.5)
+        assert httpx.get(srv.url + "/health", timeout=10).status_code == 200
+        log = srv.log.read_text(errors="replace")
+        assert "client disconnected during POST /jobs" in log
+        assert "Traceback" not in log and "internal error" not in log, log[-3000:]

@@ -12,8 +12,10 @@ DELETE; the job function itself (service.jobs.execute) is the same for both.
 from __future__ import annotations
 
 import logging
+import shutil
 import threading
 import time
+from typing import Any
 
 from service.backends.store import ACCEPTED, DISMISSED, RUNNING, JobRecord, JobStore
 from service.settings import Settings
@@ -25,6 +27,8 @@ class Backend:
     """Supervisor thread (`tick` every `period` s, or sooner after `wake`) and job hooks."""
 
     period = 0.2
+    #: s between housekeeping rounds (retention)
+    housekeeping_period = 60.0
 
     def __init__(self, settings: Settings, store: JobStore) -> None:
         self.settings, self.store = settings, store
@@ -49,13 +53,37 @@ class Backend:
         self._wake.set()
 
     def _loop(self) -> None:
+        next_housekeeping = time.monotonic()
         while not self._stopping.is_set():
             try:
                 self.tick()
+                if time.monotonic() >= next_housekeeping:
+                    next_housekeeping = time.monotonic() + self.housekeeping_period
+                    self.housekeeping()
             except Exception:  # the supervisor must outlive any one bad tick
                 log.exception("supervisor tick failed")
             self._wake.wait(self.period)
             self._wake.clear()
+
+    def housekeeping(self, now: float | None = None) -> list[str]:
+        """Remove the finished jobs (rows and files) older than `retention`; their ids."""
+        if self.settings.retention <= 0:
+            return []
+        now = time.time() if now is None else now
+        gone = []
+        for job in self.store.expired(now - self.settings.retention):
+            shutil.rmtree(self.settings.job_dir(job.id), ignore_errors=True)
+            if self.store.delete(job.id):
+                gone.append(job.id)
+        if gone:
+            log.info("retention: removed %d finished jobs older than %.0f s", len(gone),
+                     self.settings.retention)
+        return gone
+
+    def health(self) -> dict[str, Any]:
+        """`status` (`ok`, `degraded`: jobs wait for a worker, `unavailable`: jobs cannot
+        be queued), `workers` that can run jobs and how many are `busy`."""
+        return {"status": "ok", "workers": 0, "busy": 0}
 
     # ------------------------------------------------------------------ hooks
     def recover(self) -> None:

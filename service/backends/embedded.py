@@ -22,7 +22,7 @@ from typing import Any
 
 from service.backends import Backend
 from service.backends.store import ACCEPTED, DISMISSED, FAILED, RUNNING, JobRecord, JobStore
-from service.jobs import TaskContext
+from service.tasks import TaskContext
 
 log = logging.getLogger(__name__)
 
@@ -190,6 +190,11 @@ class EmbeddedBackend(Backend):
 
     def on_cancel(self, job_id: str, started: bool) -> None:
         self.wake()
+
+    def health(self) -> dict[str, Any]:
+        alive = self._thread is not None and self._thread.is_alive()
+        return {"status": "ok" if alive else "unavailable",
+                "workers": self.settings.max_workers, "busy": len(self.procs)}
 
     def stop(self) -> None:
         """Stop supervising; job processes are stopped and their jobs re-queued."""

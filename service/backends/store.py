@@ -152,9 +152,14 @@ class JobStore:
         return str(row[0])
 
     def list(self, statuses: Iterable[str] = (), process: str | None = None, limit: int = 50,
-             offset: int = 0) -> tuple[list[JobRecord], int]:
-        """Jobs newest first, filtered by status and process, and how many match in all."""
-        where, args = [], []
+             offset: int = 0, client: str | None = None) -> tuple[list[JobRecord], int]:
+        """Jobs newest first, filtered by status, process and owner (`client`; None: every
+        client's), and how many match in all."""
+        where: list[str] = []
+        args: list[Any] = []
+        if client is not None:
+            where.append("client = ?")
+            args.append(client)
         statuses = list(statuses)
         if statuses:
             where.append(f"status IN ({', '.join('?' * len(statuses))})")
@@ -177,6 +182,28 @@ class JobStore:
                               "ORDER BY created, rowid", ACTIVE).fetchall()
         return [JobRecord(*r) for r in rows]
 
+    def expired(self, finished_before: float) -> list[JobRecord]:
+        """Finished jobs that ended before `finished_before` (epoch s), oldest first."""
+        with self.connect() as db:
+            rows = db.execute(
+                f"SELECT {_COLUMNS} FROM jobs WHERE status IN (?, ?, ?) AND finished IS NOT "
+                "NULL AND finished < ? ORDER BY finished", (*FINAL, finished_before)).fetchall()
+        return [JobRecord(*r) for r in rows]
+
+    def counts(self) -> dict[str, int]:
+        """Number of jobs in each status (every status present, 0 when none)."""
+        with self.connect() as db:
+            rows = db.execute("SELECT status, COUNT(*) FROM jobs GROUP BY status").fetchall()
+        return {s: 0 for s in STATUSES} | {str(s): int(n) for s, n in rows}
+
+    def durations(self, column: str) -> list[float]:
+        """`queue_wait` (started - created) or `run_time` (finished - started) in s of every
+        job that has both times."""
+        expr = {"queue_wait": "started - created", "run_time": "finished - started"}[column]
+        with self.connect() as db:
+            rows = db.execute(f"SELECT {expr} FROM jobs WHERE {expr} IS NOT NULL").fetchall()
+        return [float(r[0]) for r in rows]
+
     # ------------------------------------------------------------------ writing
     def submit(self, *, process: str, scene: str, client: str, quota: int,
                idempotency_key: str | None = None,
@@ -185,7 +212,10 @@ class JobStore:
 
         With an idempotency key already used by this client, the earlier job is returned
         (`created` False); a different request under the same key raises
-        IdempotencyConflict. A client at its quota of unfinished jobs gets QuotaExceeded.
+        IdempotencyConflict. An earlier job that failed for a cause of ours (error kind
+        `system`: queue unreachable, worker lost) does not hold its key: the retry creates a
+        new job and the failed one keeps its record without the key. A client at its quota
+        of unfinished jobs gets QuotaExceeded.
         """
         now = time.time()
         with self.transaction() as db:
@@ -197,7 +227,10 @@ class JobStore:
                     job = JobRecord(*row)
                     if job.request_hash != request_hash:
                         raise IdempotencyConflict(idempotency_key)
-                    return job, False
+                    if not (job.status == FAILED and job.error_kind == "system"):
+                        return job, False
+                    db.execute("UPDATE jobs SET idempotency_key = NULL WHERE id = ?",
+                               (job.id,))
             active = db.execute("SELECT COUNT(*) FROM jobs WHERE client = ? AND status IN (?, ?)",
                                 (client, *ACTIVE)).fetchone()[0]
             if active >= quota:

@@ -1,0 +1,148 @@
+"""Errors as RFC 9457 `application/problem+json` documents, and the handlers that make every
+error one (validation, HTTP errors, a client that went away, anything unexpected)."""
+
+from __future__ import annotations
+
+import logging
+from typing import Any
+
+from fastapi import FastAPI, Request
+from fastapi.exceptions import RequestValidationError
+from fastapi.responses import JSONResponse, Response
+from pydantic import BaseModel
+from starlette.exceptions import HTTPException as StarletteHTTPException
+from starlette.requests import ClientDisconnect
+from starlette.routing import Mount
+
+log = logging.getLogger("service.api")
+
+PROBLEM_TYPE = "/problems/"
+PROBLEM_JSON = "application/problem+json"
+
+
+class Problem(Exception):
+    """An error answered as `application/problem+json` (RFC 9457)."""
+
+    def __init__(self, status: int, slug: str, title: str, detail: str = "",
+                 errors: list[dict[str, str]] | None = None,
+                 headers: dict[str, str] | None = None) -> None:
+        super().__init__(detail or title)
+        self.status, self.slug, self.title, self.detail = status, slug, title, detail
+        self.errors, self.headers = errors, headers
+
+    def response(self, instance: str = "") -> JSONResponse:
+        body: dict[str, Any] = {"type": PROBLEM_TYPE + self.slug, "title": self.title,
+                                "status": self.status, "detail": self.detail}
+        if instance:
+            body["instance"] = instance
+        if self.errors is not None:
+            body["errors"] = self.errors
+        return JSONResponse(body, status_code=self.status, headers=self.headers,
+                            media_type=PROBLEM_JSON)
+
+
+class ProblemError(BaseModel):
+    """One problem with the input: the field path and what is wrong."""
+
+    loc: str
+    msg: str
+
+
+class ProblemDoc(BaseModel):
+    """RFC 9457 problem details."""
+
+    type: str
+    title: str
+    status: int
+    detail: str = ""
+    instance: str | None = None
+    errors: list[ProblemError] | None = None
+
+
+def invalid_scene(errors: list[dict[str, str]]) -> Problem:
+    """422 naming every bad field (the first three in `detail`)."""
+    lines = [f"{e['loc']}: {e['msg']}" if e["loc"] else e["msg"] for e in errors]
+    more = f" (and {len(lines) - 3} more)" if len(lines) > 3 else ""
+    return Problem(422, "invalid-scene", "Invalid scene", "; ".join(lines[:3]) + more,
+                   errors=errors)
+
+
+def no_such_job(job_id: str) -> Problem:
+    """404 for a job that does not exist or belongs to someone else (indistinguishable)."""
+    return Problem(404, "no-such-job", "No such job", f"there is no job '{job_id}'")
+
+
+TITLES = {400: "Bad request", 401: "API key missing or wrong", 404: "Not found",
+          405: "Method not allowed", 409: "Conflict", 413: "Request body too large",
+          415: "Unsupported media type", 416: "Range not satisfiable",
+          422: "Invalid input", 429: "Too many requests or unfinished jobs",
+          503: "Job queue unavailable", 507: "Insufficient storage"}
+
+
+def problem_responses(*codes: int) -> dict[int | str, dict[str, Any]]:
+    """OpenAPI `responses` entries for these error codes (problem+json)."""
+    ref = {"schema": {"$ref": "#/components/schemas/ProblemDoc"}}
+    return {c: {"description": TITLES[c], "content": {PROBLEM_JSON: ref}} for c in codes}
+
+
+def _route_methods(routes: list[Any], path: str) -> set[str]:
+    """Methods of the routes (walking into included routers and mounts) that serve `path`."""
+    methods: set[str] = set()
+    for route in routes:
+        included = getattr(route, "original_router", None)
+        if included is not None:  # FastAPI keeps an included router as one route
+            methods |= _route_methods(included.routes, path)
+        elif getattr(route, "methods", None):
+            if route.path_regex.match(path):
+                methods |= set(route.methods)
+        elif isinstance(route, Mount) and path.startswith(route.path.rstrip("/") + "/"):
+            methods |= {"GET", "HEAD"}  # static files
+    return methods
+
+
+def allowed_methods(request: Request) -> list[str]:
+    """Every method some route serves at the request's path (for 405's Allow header)."""
+    scope = request.scope  # a mount changes root_path; app_root_path is the app's own
+    root = str(scope.get("app_root_path", scope.get("root_path", ""))).rstrip("/")
+    path = request.url.path.removeprefix(root) or "/"
+    return sorted(_route_methods(request.app.router.routes, path))
+
+
+def install_handlers(app: FastAPI) -> None:
+    """Make every error of `app` a problem document (never a stack trace)."""
+
+    @app.exception_handler(Problem)
+    async def _problem(request: Request, exc: Problem) -> Response:
+        return exc.response(request.url.path)
+
+    @app.exception_handler(RequestValidationError)
+    async def _invalid(request: Request, exc: RequestValidationError) -> Response:
+        errors = [{"loc": ".".join(str(p) for p in e.get("loc", ())),
+                   "msg": str(e.get("msg", ""))} for e in exc.errors()]
+        return Problem(422, "invalid-request", "Invalid request",
+                       "; ".join(f"{e['loc']}: {e['msg']}" for e in errors[:3]),
+                       errors=errors).response(request.url.path)
+
+    @app.exception_handler(StarletteHTTPException)
+    async def _http(request: Request, exc: StarletteHTTPException) -> Response:
+        slug = {404: "not-found", 405: "method-not-allowed",
+                416: "range-not-satisfiable"}.get(exc.status_code, "http-error")
+        headers = dict(getattr(exc, "headers", None) or {})
+        if exc.status_code == 405:  # every method of the path, not just the first route's
+            headers["Allow"] = ", ".join(allowed_methods(request))
+        return Problem(exc.status_code, slug, str(exc.detail), str(exc.detail),
+                       headers=headers or None).response(request.url.path)
+
+    @app.exception_handler(ClientDisconnect)
+    async def _gone(request: Request, exc: ClientDisconnect) -> Response:
+        # the client closed the connection while sending its body: nobody reads this
+        log.info("client disconnected during %s %s", request.method, request.url.path)
+        return Problem(400, "client-disconnected", "Client disconnected",
+                       "the request body ended early").response(request.url.path)
+
+    @app.exception_handler(Exception)
+    async def _internal(request: Request, exc: Exception) -> Response:
+        log.error("internal error on %s", request.url.path, exc_info=exc)
+        return Problem(500, "internal-error", "Internal error",
+                       "the service failed to answer; the error was logged").response(
+            request.url.path)

@@ -1,0 +1,163 @@
+"""A finished job's results: the results document, its files (a killed run's HDF5 served as
+a recovered copy any HDF5 reader opens), plots made on demand, contacts of a step."""
+
+from __future__ import annotations
+
+import contextlib
+import json
+import logging
+import os
+import threading
+from pathlib import Path
+from typing import Any
+
+from service.api.models import FILE_TYPES
+from service.api.problems import Problem
+from service.backends.store import ACTIVE, SUCCESSFUL, JobRecord
+from service.documents import NotRecorded, result_contacts_document
+from service.processes import PROCESSES, RESULT_FILE
+from service.settings import Settings
+
+log = logging.getLogger("service.api")
+
+#: the copy of a killed run's result.h5 that is served instead of it
+RECOVERED_FILE = "result.recovered.h5"
+
+_locks: dict[str, threading.Lock] = {}
+_locks_guard = threading.Lock()
+
+
+def _lock(name: str) -> threading.Lock:
+    with _locks_guard:
+        return _locks.setdefault(name, threading.Lock())
+
+
+def require_final(job: JobRecord) -> None:
+    """404 `result-not-ready` (with Retry-After) while the job is accepted or running."""
+    if job.status in ACTIVE:
+        raise Problem(404, "result-not-ready", "Result not ready",
+                      f"job {job.id} is {job.status} ({int(job.progress)} %); its results "
+                      "are available when it ends", headers={"Retry-After": "2"})
+
+
+def artifact(job: JobRecord, settings: Settings, name: str) -> Path:
+    """The path of one of the job's result files (404 if it has none of that name)."""
+    require_final(job)
+    path = settings.job_dir(job.id) / name
+    if name not in PROCESSES[job.process].artifacts or not path.is_file():
+        raise Problem(404, "no-such-result", "No such result",
+                      f"job {job.id} has no result '{name}'"
+                      + (f" (it {job.status}: {job.message})" if job.message else ""))
+    return path
+
+
+def _opens_plainly(path: Path) -> bool:
+    """True if an ordinary HDF5 reader opens `path` (a killed SWMR writer leaves its file
+    marked open-for-writing, which only SWMR readers accept)."""
+    import h5py
+
+    try:
+        with h5py.File(path, "r"):
+            return True
+    except OSError:
+        return False
+
+
+def readable_result(job: JobRecord, settings: Settings) -> tuple[Path, bool]:
+    """The job's result.h5 as a file any HDF5 reader opens, and whether it is a recovered
+    copy (engine.results.recover_result: the steps flushed before the run was killed)."""
+    path = artifact(job, settings, RESULT_FILE)
+    copy = path.with_name(RECOVERED_FILE)
+    with _lock(job.id + "/h5"):
+        if copy.is_file() and copy.stat().st_mtime >= path.stat().st_mtime:
+            return copy, True
+        if _opens_plainly(path):
+            return path, False
+        from engine.results import recover_result
+
+        tmp = path.with_name(f".{RECOVERED_FILE}.{os.getpid()}.tmp")
+        with contextlib.suppress(FileNotFoundError):
+            tmp.unlink()
+        try:
+            recover_result(path, tmp)
+            os.replace(tmp, copy)
+        except Exception as exc:
+            with contextlib.suppress(FileNotFoundError):
+                tmp.unlink()
+            log.warning("result of job %s could not be recovered: %s", job.id, exc)
+            raise Problem(404, "no-such-result", "Result unreadable",
+                          f"job {job.id}'s result.h5 was left unreadable by its killed run "
+                          f"and could not be recovered: {exc}") from None
+        return copy, True
+
+
+def results_document(job: JobRecord, settings: Settings, root: str) -> dict[str, Any]:
+    """The results document: status, the main JSON artifact inline, links to the files."""
+    require_final(job)
+    p = PROCESSES[job.process]
+    d = settings.job_dir(job.id)
+    base = f"{root}/jobs/{job.id}/results"
+    files = [n for n in p.artifacts if (d / n).is_file()]
+    if not files:
+        raise Problem(404, "no-such-result", "No results",
+                      f"job {job.id} {job.status} without results: {job.message}")
+    doc: dict[str, Any] = {"jobID": job.id, "processID": job.process, "status": job.status,
+                           "message": job.message, "partial": job.status != SUCCESSFUL}
+    main = d / p.main_artifact
+    if main.is_file():
+        doc[p.result_key] = json.loads(main.read_text(encoding="utf-8"))
+    elif (d / RESULT_FILE).is_file():  # a run killed before it could write its summary
+        from engine.summary import summarize
+
+        doc[p.result_key] = summarize(d / RESULT_FILE)
+    links = []
+    for n in files:
+        link = {"href": f"{base}/{n}", "rel": "enclosure", "type": FILE_TYPES[Path(n).suffix],
+                "title": n}
+        if n == RESULT_FILE and not main.is_file():
+            link["title"] = (f"{n} (the steps recorded before the run was killed, copied "
+                             "into a file any HDF5 reader opens)")
+        links.append(link)
+    if RESULT_FILE in files:
+        links += [{"href": f"{base}/plots", "rel": "related", "type": "application/json",
+                   "title": "PNG plots (made on first request)"},
+                  {"href": f"{base}/contacts?format=csv", "rel": "related", "type": "text/csv",
+                   "title": "contacts of the last recorded step (?step=N for another)"}]
+    doc["links"] = links
+    return doc
+
+
+def plots(job: JobRecord, settings: Settings) -> list[Path]:
+    """The job's PNG plots, made on first request (engine.plots.plot_all)."""
+    h5 = artifact(job, settings, RESULT_FILE)  # the engine's reader opens a killed run's file
+    out = settings.job_dir(job.id) / "plots"
+    done = out / ".done"
+    with _lock(job.id + "/plots"):
+        if not done.exists():
+            from engine.plots import plot_all
+
+            try:
+                plot_all(h5, out)
+            except Exception as exc:
+                log.exception("plots of job %s failed", job.id)
+                raise Problem(500, "plot-failed", "Plots could not be made",
+                              f"system error: {type(exc).__name__}: {exc}") from None
+            done.touch()
+    return sorted(out.glob("*.png"))
+
+
+def contacts(job: JobRecord, settings: Settings, step: int | None) -> dict[str, Any]:
+    """service.documents.result_contacts_document of the job's result (404 / 422 when the
+    file has no contacts or not that step)."""
+    from engine.results import open_result
+
+    h5 = artifact(job, settings, RESULT_FILE)
+    with open_result(h5) as r:
+        try:
+            return result_contacts_document(r, step)
+        except NotRecorded as exc:
+            if exc.loc:
+                raise Problem(422, "invalid-request", "Step not recorded", exc.message,
+                              errors=[{"loc": exc.loc, "msg": exc.message}]) from None
+            raise Problem(404, "contacts-not-recorded", "Contacts not recorded",
+                          exc.message) from None

@@ -1,0 +1,276 @@
+"""The API's routes, thin: each reads its dependencies and calls one function of
+service.api (submission, results) or the job table; errors are Problems."""
+
+from __future__ import annotations
+
+import asyncio
+import json
+import os
+import shutil
+import time
+from collections.abc import AsyncIterator
+from typing import Annotated, Any, Literal
+
+from fastapi import APIRouter, Depends, Query
+from fastapi.responses import FileResponse, JSONResponse, Response
+from starlette.concurrency import run_in_threadpool
+from starlette.datastructures import Headers
+from starlette.responses import MalformedRangeHeader, RangeNotSatisfiable, StreamingResponse
+from starlette.types import Receive, Scope, Send
+
+from service.api import results, submission
+from service.api.dependencies import (
+    BackendDep,
+    ClientDep,
+    IdempotencyKey,
+    JobDep,
+    RootDep,
+    SceneBody,
+    SettingsDep,
+    StoreDep,
+    _client,
+)
+from service.api.models import FILE_TYPES, JobList, Status, StatusInfo, process_doc, status_doc
+from service.api.problems import Problem, problem_responses
+from service.backends.store import ACTIVE, JobStore
+from service.documents import contacts_csv
+from service.processes import PROCESS_IDS, PROCESSES, RESULT_FILE, ProcessId
+
+#: the largest offset SQLite takes (a signed 64-bit integer)
+MAX_OFFSET = 2**63 - 1
+
+router = APIRouter(dependencies=[Depends(_client)])
+
+
+class ProblemFileResponse(FileResponse):
+    """FileResponse whose Range errors (400, 416) are problem documents, not plain text."""
+
+    async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
+        http_range = Headers(scope=scope).get("range")
+        if http_range is not None and scope["type"] == "http":
+            try:
+                self._parse_range_header(http_range, os.stat(self.path).st_size)
+            except MalformedRangeHeader as exc:
+                problem = Problem(400, "malformed-range", "Malformed Range header", exc.content)
+                return await problem.response(scope["path"])(scope, receive, send)
+            except RangeNotSatisfiable as exc:
+                problem = Problem(416, "range-not-satisfiable", "Range not satisfiable",
+                                  f"the file has {exc.max_size:,} bytes",
+                                  headers={"Content-Range": f"bytes */{exc.max_size}"})
+                return await problem.response(scope["path"])(scope, receive, send)
+        await super().__call__(scope, receive, send)
+
+
+def _no_such_process(process_id: str) -> Problem:
+    return Problem(404, "no-such-process", "No such process",
+                   f"there is no process '{process_id}' (known: {', '.join(PROCESS_IDS)})")
+
+
+# --------------------------------------------------------------------------- processes
+
+
+@router.get("/processes", tags=["processes"], summary="List the processes",
+            operation_id="listProcesses")
+def list_processes(root: RootDep) -> dict[str, Any]:
+    return {"processes": [process_doc(p, root, full=False) for p in PROCESSES],
+            "links": [{"href": f"{root}/processes", "rel": "self", "type": "application/json"}]}
+
+
+@router.get("/processes/{process_id}", tags=["processes"], summary="Describe a process",
+            operation_id="getProcess", responses=problem_responses(404))
+def get_process(process_id: str, root: RootDep) -> dict[str, Any]:
+    if process_id not in PROCESSES:
+        raise _no_such_process(process_id)
+    return process_doc(process_id, root, full=True)
+
+
+_SCENE_BODY = {"requestBody": {"required": True, "description": "the scene", "content": {
+    "application/json": {"schema": {"$ref": "#/components/schemas/Scene"}}}}}
+_SUBMIT_RESPONSES: dict[int | str, dict[str, Any]] = {
+    201: {"description": "Job created (or the job of an earlier request with the same "
+                         "Idempotency-Key)", "model": StatusInfo,
+          "headers": {"Location": {"schema": {"type": "string"},
+                                   "description": "the job's URL"}}},
+    **problem_responses(401, 404, 413, 415, 422, 429, 503, 507),
+}
+
+
+@router.post("/processes/{process_id}/execution", tags=["processes"], status_code=201,
+             summary="Run a process on a scene (creates a job)", openapi_extra=_SCENE_BODY,
+             responses=_SUBMIT_RESPONSES, response_model=None, operation_id="executeProcess")
+def execute_process(process_id: str, data: SceneBody, settings: SettingsDep, store: StoreDep,
+                    backend: BackendDep, client: ClientDep, root: RootDep,
+                    key: IdempotencyKey = None) -> JSONResponse:
+    if process_id not in PROCESSES:
+        raise _no_such_process(process_id)
+    return submission.submit(process_id, data, settings=settings, store=store,
+                             backend=backend, client=client, key=key, root=root)
+
+
+# --------------------------------------------------------------------------- jobs
+
+
+@router.post("/jobs", tags=["jobs"], status_code=201, openapi_extra=_SCENE_BODY,
+             summary="Submit a scene (creates a job; process from ?process=, the body's "
+                     "'process' or the scene's analysis.type)",
+             responses=_SUBMIT_RESPONSES, response_model=None, operation_id="createJob")
+def create_job(data: SceneBody, settings: SettingsDep, store: StoreDep, backend: BackendDep,
+               client: ClientDep, root: RootDep, process: ProcessId | None = None,
+               key: IdempotencyKey = None) -> JSONResponse:
+    return submission.submit(process, data, settings=settings, store=store, backend=backend,
+                             client=client, key=key, root=root)
+
+
+@router.get("/jobs", tags=["jobs"], summary="List your jobs (newest first; admins: all)",
+            response_model=JobList, responses=problem_responses(401, 422),
+            operation_id="listJobs")
+def list_jobs(store: StoreDep, client: ClientDep, root: RootDep,
+              status: Annotated[list[Status] | None, Query()] = None,
+              process: ProcessId | None = None,
+              limit: Annotated[int, Query(ge=1, le=1000)] = 50,
+              offset: Annotated[int, Query(ge=0, le=MAX_OFFSET)] = 0) -> dict[str, Any]:
+    jobs, total = store.list(status or (), process, limit, offset,
+                             client=None if client.admin else client.id)
+    query = "".join(f"&status={s}" for s in status or ()) + (
+        f"&process={process}" if process else "")
+
+    def page(off: int) -> str:
+        return f"{root}/jobs?limit={limit}&offset={off}{query}"
+
+    links = [{"href": page(offset), "rel": "self", "type": "application/json"}]
+    if offset + len(jobs) < total:
+        links.append({"href": page(offset + limit), "rel": "next", "type": "application/json"})
+    if offset > 0:
+        links.append({"href": page(max(0, offset - limit)), "rel": "prev",
+                      "type": "application/json"})
+    return {"jobs": [status_doc(j, root) for j in jobs], "numberMatched": total,
+            "numberReturned": len(jobs), "links": links}
+
+
+@router.get("/jobs/{job_id}", tags=["jobs"], summary="Status of a job",
+            response_model=StatusInfo, responses=problem_responses(401, 404),
+            operation_id="getJob")
+def get_job(job: JobDep, root: RootDep) -> dict[str, Any]:
+    return status_doc(job, root)
+
+
+@router.delete("/jobs/{job_id}", tags=["jobs"], response_model=StatusInfo,
+               summary="Cancel a job (partial results stay) or remove a finished one",
+               responses={202: {"description": "cancel requested; the job is still stopping",
+                                "model": StatusInfo}, **problem_responses(401, 404)},
+               operation_id="dismissJob")
+def dismiss_job(job: JobDep, store: StoreDep, backend: BackendDep, settings: SettingsDep,
+                root: RootDep) -> Any:
+    if job.status in ACTIVE:
+        backend.cancel(job.id)
+        deadline = time.monotonic() + settings.cancel_grace + 5.0
+        current = store.get(job.id) or job
+        while current.status in ACTIVE and time.monotonic() < deadline:
+            time.sleep(0.05)
+            current = store.get(job.id) or current
+        return JSONResponse(status_doc(current, root),
+                            status_code=200 if current.is_final else 202)
+    shutil.rmtree(settings.job_dir(job.id), ignore_errors=True)
+    store.delete(job.id)
+    doc = status_doc(job, root)
+    doc.update(status="dismissed", message="removed with its results",
+               links=[lk for lk in doc["links"] if lk["rel"] == "self"])
+    return doc
+
+
+async def _events(store: JobStore, job_id: str, root: str) -> AsyncIterator[str]:
+    """Server-sent events: one `status` event per change, closing after the final one."""
+    yield "retry: 2000\n\n"
+    last: tuple[float, str] | None = None
+    n = 0
+    beat = time.monotonic()
+    while True:
+        job = await run_in_threadpool(store.get, job_id)
+        if job is None:
+            yield "event: gone\ndata: {}\n\n"
+            return
+        if (job.updated, job.status) != last:
+            last = (job.updated, job.status)
+            n += 1
+            yield f"event: status\nid: {n}\ndata: {json.dumps(status_doc(job, root))}\n\n"
+            beat = time.monotonic()
+        if job.is_final:
+            return
+        if time.monotonic() - beat > 15:
+            yield ": keep-alive\n\n"
+            beat = time.monotonic()
+        await asyncio.sleep(0.25)
+
+
+@router.get("/jobs/{job_id}/events", tags=["jobs"], response_class=StreamingResponse,
+            summary="Progress as server-sent events (ends when the job ends)",
+            responses={200: {"description": "`status` events with statusInfo documents",
+                             "content": {"text/event-stream": {"schema": {"type": "string"}}}},
+                       **problem_responses(401, 404)},
+            operation_id="jobEvents")
+def job_events(job: JobDep, store: StoreDep, root: RootDep) -> StreamingResponse:
+    return StreamingResponse(_events(store, job.id, root), media_type="text/event-stream",
+                             headers={"Cache-Control": "no-cache", "X-Accel-Buffering": "no"})
+
+
+# --------------------------------------------------------------------------- results
+
+
+@router.get("/jobs/{job_id}/results", tags=["results"],
+            summary="The job's result document (summary and links to the files)",
+            responses=problem_responses(401, 404), operation_id="getResults")
+def job_results(job: JobDep, settings: SettingsDep, root: RootDep) -> dict[str, Any]:
+    return results.results_document(job, settings, root)
+
+
+@router.get("/jobs/{job_id}/results/plots", tags=["results"], summary="List the PNG plots",
+            responses=problem_responses(401, 404), operation_id="listPlots")
+def job_plots(job: JobDep, settings: SettingsDep, root: RootDep) -> dict[str, Any]:
+    base = f"{root}/jobs/{job.id}/results/plots"
+    return {"plots": [{"name": p.name, "href": f"{base}/{p.name}", "type": "image/png"}
+                      for p in results.plots(job, settings)]}
+
+
+@router.get("/jobs/{job_id}/results/plots/{name}", tags=["results"], summary="One PNG plot",
+            response_class=FileResponse, operation_id="getPlot",
+            responses={200: {"content": {"image/png": {}}}, **problem_responses(401, 404)})
+def job_plot(job: JobDep, name: str, settings: SettingsDep) -> FileResponse:
+    for p in results.plots(job, settings):
+        if p.name == name:
+            return FileResponse(p, media_type="image/png")
+    raise Problem(404, "no-such-result", "No such plot", f"job {job.id} has no plot '{name}'")
+
+
+@router.get("/jobs/{job_id}/results/contacts", tags=["results"],
+            summary="Contacts of one recorded step as CSV or JSON", operation_id="getContacts",
+            responses={200: {"content": {"text/csv": {"schema": {"type": "string"}},
+                                         "application/json": {}}},
+                       **problem_responses(401, 404, 422)})
+def job_contacts(job: JobDep, settings: SettingsDep,
+                 step: Annotated[int | None, Query(description="solver step (default: last "
+                                                               "recorded)")] = None,
+                 format: Literal["csv", "json"] = "json") -> Response:
+    doc = results.contacts(job, settings, step)
+    if format == "csv":
+        return Response(contacts_csv(doc), media_type="text/csv; charset=utf-8")
+    return JSONResponse(doc)
+
+
+@router.get("/jobs/{job_id}/results/{name}", tags=["results"], response_class=FileResponse,
+            summary="Download a result file (Range requests work; the result.h5 of a killed "
+                    "run is served as a recovered copy any HDF5 reader opens, marked "
+                    "X-PolyDDA-Recovered: true)", operation_id="getResultFile",
+            responses={200: {"content": {"application/x-hdf5": {}, "application/json": {}}},
+                       206: {"description": "part of the file (Range)",
+                             "content": {"application/x-hdf5": {}}},
+                       **problem_responses(401, 404, 416)})
+def job_file(job: JobDep, name: str, settings: SettingsDep) -> FileResponse:
+    headers = {}
+    if name == RESULT_FILE:
+        path, recovered = results.readable_result(job, settings)
+        if recovered:
+            headers["X-PolyDDA-Recovered"] = "true"
+    else:
+        path = results.artifact(job, settings, name)
+    return ProblemFileResponse(path, media_type=FILE_TYPES[path.suffix], headers=headers,
+                               filename=f"{job.id}-{name}" if path.suffix == ".h5" else None)

@@ -1,0 +1,167 @@
+"""Submitting a scene: unwrap the body, check the service's limits, validate the scene
+completely (schemas.convert.build_model) before any job exists, guard the disk, commit the
+job row and hand it to the backend."""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import logging
+import shutil
+import threading
+from typing import Any
+
+from fastapi.responses import JSONResponse
+
+from service.api.dependencies import Client
+from service.api.models import status_doc
+from service.api.problems import Problem, invalid_scene
+from service.backends import Backend
+from service.backends.store import IdempotencyConflict, JobStore, QuotaExceeded
+from service.processes import PROCESS_IDS, PROCESSES, default_process
+from service.settings import Settings
+
+log = logging.getLogger("service.api")
+
+#: scenes validated at once (cutting a big domain is CPU work; the rest wait their turn)
+_VALIDATION_SLOTS = threading.BoundedSemaphore(4)
+
+
+def unwrap(data: Any) -> tuple[str | None, Any]:
+    """`(process, scene)` from a bare scene, `{"inputs": {"scene": ...}}` (OGC) or
+    `{"process": ..., "scene": ...}`."""
+    if not isinstance(data, dict):
+        return None, data
+    process = None
+    if "process" in data:
+        data = dict(data)
+        process = data.pop("process")
+        if not isinstance(process, str) or process not in PROCESSES:
+            raise invalid_scene([{"loc": "process", "msg": f"unknown process {process!r} "
+                                  f"(known: {', '.join(PROCESS_IDS)})"}])
+    inputs = data.get("inputs")
+    if set(data) == {"inputs"} and isinstance(inputs, dict) and "scene" in inputs:
+        return process, inputs["scene"]
+    if set(data) == {"scene"}:
+        return process, data["scene"]
+    return process, data
+
+
+def limit_problems(scene: Any, settings: Settings) -> list[dict[str, str]]:
+    """Service limits (stricter than the format's), each naming its setting: vertices,
+    blocks (explicit ones plus the estimate of those the joints cut), duration, steps.
+
+    Only counts and arithmetic on the validated scene: nothing is cut or built yet.
+    """
+    from schemas.errors import fmt_count
+    from schemas.scene import estimate_cut_blocks
+
+    problems = []
+    nv = sum(len(b.vertices) for b in scene.blocks)
+    if scene.domain is not None and scene.domain.polyhedron is not None:
+        nv += len(scene.domain.polyhedron.vertices)
+    if nv > settings.max_vertices:
+        problems.append({"loc": "blocks", "msg": f"the scene has {nv:,} vertices in all; this "
+                         f"service accepts at most {settings.max_vertices:,} "
+                         "(POLYDDA_MAX_VERTICES)"})
+    if len(scene.blocks) > settings.max_blocks:
+        problems.append({"loc": "blocks", "msg": f"{len(scene.blocks):,} blocks; this service "
+                         f"accepts at most {settings.max_blocks:,} (POLYDDA_MAX_BLOCKS)"})
+    elif scene.joints:
+        cut = estimate_cut_blocks(scene)
+        if cut + len(scene.blocks) > settings.max_blocks:
+            extra = f" (and {len(scene.blocks):,} explicit ones)" if scene.blocks else ""
+            problems.append({"loc": "joints", "msg": f"the joints would cut the domain into "
+                             f"about {fmt_count(cut)} blocks{extra}; this service accepts at "
+                             f"most {settings.max_blocks:,} (POLYDDA_MAX_BLOCKS): increase the "
+                             "joint spacings or make the domain smaller"})
+    a = scene.analysis
+    if a.duration > settings.max_duration:
+        problems.append({"loc": "analysis.duration", "msg": f"{a.duration:g} s; this service "
+                         f"simulates at most {settings.max_duration:g} s "
+                         "(POLYDDA_MAX_DURATION)"})
+    if a.duration / a.time_step > settings.max_steps:
+        problems.append({"loc": "analysis.time_step", "msg": f"duration / time_step = "
+                         f"{a.duration / a.time_step:.3g} steps; this service runs at most "
+                         f"{settings.max_steps:,} (POLYDDA_MAX_STEPS)"})
+    return problems
+
+
+def validate_scene(data: Any, settings: Settings) -> Any:
+    """The validated Scene of `data` (Problem 422 naming every bad field); builds the model.
+
+    The service's size limits are checked right after the field types, before the
+    format's own checks and long before cutting: a scene over a limit is refused at once.
+    """
+    from pydantic import ValidationError
+
+    from schemas.convert import build_model
+    from schemas.errors import SceneError, from_validation_error
+    from schemas.scene import Scene, scene_problems
+
+    if not isinstance(data, dict):
+        raise invalid_scene([{"loc": "", "msg": "a scene must be a JSON object {...}"}])
+    try:
+        try:
+            scene = Scene.model_validate(data)
+        except ValidationError as exc:
+            raise from_validation_error(exc, data, Scene) from None
+        problems = limit_problems(scene, settings) or scene_problems(scene)
+        if problems:
+            raise invalid_scene(problems)
+        build_model(scene)
+    except SceneError as exc:
+        raise invalid_scene(exc.problems) from None
+    return scene
+
+
+def check_disk(settings: Settings) -> None:
+    """507 when the data directory's disk has less free space than `min_free_bytes`."""
+    free = shutil.disk_usage(settings.data_dir).free
+    if free < settings.min_free_bytes:
+        raise Problem(507, "insufficient-storage", "Insufficient storage",
+                      f"the service's disk has {free / 2**20:,.0f} MiB free, less than the "
+                      f"{settings.min_free_bytes / 2**20:,.0f} MiB it keeps free "
+                      "(POLYDDA_MIN_FREE_BYTES); try again later",
+                      headers={"Retry-After": "300"})
+
+
+def submit(process: str | None, data: Any, *, settings: Settings, store: JobStore,
+           backend: Backend, client: Client, key: str | None, root: str) -> JSONResponse:
+    """Validate and create a job: 201 with its status (or the earlier job of the same
+    Idempotency-Key, `Idempotent-Replayed: true`)."""
+    body_process, scene_data = unwrap(data)
+    if process is not None and body_process is not None and process != body_process:
+        raise invalid_scene([{"loc": "process", "msg": f"'{body_process}' in the body but "
+                              f"'{process}' in the URL"}])
+    with _VALIDATION_SLOTS:
+        scene = validate_scene(scene_data, settings)
+    process = process or body_process or default_process(scene.analysis.type)
+    text = json.dumps(scene_data, ensure_ascii=False, separators=(",", ":"))
+    digest = hashlib.sha256(f"{process}\n{text}".encode()).hexdigest()
+    check_disk(settings)
+    try:
+        job, created = store.submit(process=process, scene=text, client=client.id,
+                                    quota=settings.client_quota, idempotency_key=key,
+                                    request_hash=digest)
+    except QuotaExceeded as exc:
+        raise Problem(429, "quota-exceeded", "Too many unfinished jobs",
+                      f"you have {exc.active} jobs accepted or running; the limit is "
+                      f"{exc.quota}. Wait for one to finish or dismiss one.",
+                      headers={"Retry-After": "5"}) from None
+    except IdempotencyConflict:
+        raise Problem(422, "idempotency-key-reused", "Idempotency-Key reused",
+                      "this Idempotency-Key was used for a different request") from None
+    if created:
+        try:
+            backend.submitted(job)
+        except Exception as exc:
+            log.warning("backend could not take job %s: %s", job.id, exc)
+            raise Problem(503, "queue-unavailable", "Job queue unavailable",
+                          f"the job was recorded as failed: {exc}; retry (with the same "
+                          "Idempotency-Key) later", headers={"Retry-After": "30"}) from None
+    headers = {"Location": f"{root}/jobs/{job.id}"}
+    if not created:
+        headers["Idempotent-Replayed"] = "true"
+    current = job if created else (store.get(job.id) or job)  # a replay: its state now
+    return JSONResponse(status_doc(current, root), status_code=201, headers=headers)

@@ -1,0 +1,250 @@
+"""The documents PolyDDA answers with, built once for the CLI and the REST service.
+
+Blocks after cutting, contact lists (of a scene as given, or of a recorded step of a
+result), the run summary (the engine's, with the scene's block names and every warning:
+the build's and the engine's), strength-reduction controls read from the scene (watched
+blocks, weakened joint materials) and the factor-of-safety document. `polydda blocks /
+contacts / run / fos` print or write these; the service's jobs write the same ones, so
+the two cannot drift apart.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import csv
+import io
+import json
+import os
+import tempfile
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+if TYPE_CHECKING:
+    from engine.analyses import FactorOfSafetyResult, StrengthReductionControls
+    from engine.geometry import Polyhedron
+    from engine.results import Result
+    from schemas.convert import BuildResult
+
+#: default contact search distance for the contacts of a scene, as a fraction of its size
+SEARCH_DISTANCE_RATIO = 1e-3
+
+
+class NotRecorded(LookupError):
+    """The result file has no such data (contacts not recorded, no such step)."""
+
+    def __init__(self, message: str, loc: str = "") -> None:
+        super().__init__(message)
+        self.message, self.loc = message, loc
+
+
+# --------------------------------------------------------------------------- JSON
+
+
+def json_default(obj: Any) -> Any:
+    """numpy scalars and arrays as plain JSON values."""
+    if isinstance(obj, np.generic):
+        return obj.item()
+    if isinstance(obj, np.ndarray):
+        return obj.tolist()
+    raise TypeError(f"{type(obj).__name__} is not JSON serializable")
+
+
+def finite(value: Any) -> Any:
+    """`value` with NaN and infinities replaced by None (strict JSON)."""
+    if isinstance(value, float):
+        return value if value == value and abs(value) != float("inf") else None
+    if isinstance(value, dict):
+        return {k: finite(v) for k, v in value.items()}
+    if isinstance(value, list | tuple):
+        return [finite(v) for v in value]
+    return value
+
+
+def write_json_atomic(path: Path, doc: Any) -> None:
+    """Write `doc` as JSON to `path` via a temporary file, fsync and rename (never half a
+    file for a reader)."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+    try:
+        with os.fdopen(fd, "w", encoding="utf-8") as f:
+            json.dump(doc, f, indent=2, allow_nan=False, default=json_default)
+            f.write("\n")
+            f.flush()
+            os.fsync(f.fileno())
+        os.replace(tmp, path)
+    except BaseException:
+        with contextlib.suppress(OSError):
+            os.unlink(tmp)
+        raise
+
+
+def rounded(x: np.ndarray | float, digits: int = 9) -> Any:
+    """Rounded plain-Python numbers for JSON (no -0.0)."""
+    return (np.round(np.asarray(x, float), digits) + 0.0).tolist()
+
+
+# --------------------------------------------------------------------------- blocks
+
+
+def surface(poly: Polyhedron) -> tuple[np.ndarray, list[list[int]]]:
+    """The surface vertices `(k, 3)` and faces re-indexed to them (seam points dropped)."""
+    used = poly.surface_vertex_ids
+    remap = np.full(len(poly.vertices), -1, dtype=np.int64)
+    remap[used] = np.arange(len(used))
+    return poly.vertices[used], [remap[f].tolist() for f in poly.faces]
+
+
+def blocks_document(build: BuildResult) -> dict[str, Any]:
+    """`{"blocks": [...], "count", "total_volume", "warnings"}`: each block's name, volume
+    (m³), centroid, concave, fixed, surface vertices and faces."""
+    docs = []
+    for name, b in zip(build.block_names, build.model.blocks, strict=True):
+        verts, faces = surface(b.polyhedron)
+        docs.append({
+            "name": name,
+            "volume": float(b.polyhedron.volume),
+            "centroid": rounded(b.polyhedron.centroid),
+            "concave": not b.polyhedron.is_convex,
+            "fixed": bool(b.fixed),
+            "vertices": rounded(verts),
+            "faces": faces,
+        })
+    return {"blocks": docs, "count": len(docs),
+            "total_volume": float(sum(d["volume"] for d in docs)),
+            "warnings": list(build.warnings)}
+
+
+# --------------------------------------------------------------------------- contacts
+
+
+def scene_contacts_document(build: BuildResult,
+                            search_distance: float | None = None) -> dict[str, Any]:
+    """The contact constraints of the scene as given (before any step), found within
+    `search_distance` m (default SEARCH_DISTANCE_RATIO × the model size)."""
+    from engine.contacts import KIND_NAMES, MODE_NAMES
+    from engine.detection import detect_contacts
+
+    model = build.model
+    search = (search_distance if search_distance is not None
+              else SEARCH_DISTANCE_RATIO * model.scale)
+    active = np.array([not b.fixed for b in model.blocks], dtype=bool)
+    cs = detect_contacts([b.polyhedron for b in model.blocks], search, active=active)
+    names, joints = build.block_names, build.joint_names
+    rows = []
+    for k in range(len(cs)):
+        tag = int(cs.face_tag[k])
+        rows.append({
+            "block_i": names[int(cs.block_i[k])],
+            "block_j": names[int(cs.block_j[k])],
+            "type": KIND_NAMES[int(cs.kind[k])],
+            "point_i": rounded(cs.point_i[k]),
+            "point_j": rounded(cs.point_j[k]),
+            "normal": rounded(cs.normal[k]),
+            "tangent": rounded(cs.tangent[k]),
+            "mode": MODE_NAMES[int(cs.mode[k])],
+            "penetration": float(max(0.0, -cs.gap[k])),
+            "gap": float(cs.gap[k]),
+            "joint": joints[tag] if 0 <= tag < len(joints) else None,
+        })
+    return {"search_distance": search, "count": len(rows), "contacts": rows}
+
+
+def result_contacts_document(result: Result, step: int | None = None) -> dict[str, Any]:
+    """The contacts of one recorded solver `step` of a result (default: the last recorded);
+    NotRecorded when the file has none or not that step."""
+    from engine.contacts import KIND_NAMES, MODE_NAMES
+
+    if not result.contacts_recorded:
+        raise NotRecorded("the scene set analysis.record_contacts to false")
+    if result.n_steps == 0:
+        raise NotRecorded("the run recorded no step")
+    steps = result.steps
+    if step is None:
+        k = result.n_steps - 1
+    else:
+        hits = np.flatnonzero(steps == step)
+        if not len(hits):
+            raise NotRecorded(f"step {step} was not recorded; recorded steps run from "
+                              f"{int(steps[0])} to {int(steps[-1])} ({result.n_steps} "
+                              "records)", loc="query.step")
+        k = int(hits[0])
+    c = result.contacts(k)
+    names = result.block_names
+    rows = []
+    for i in range(len(c["gap"])):
+        rows.append({
+            "block_i": names[int(c["block_i"][i])], "block_j": names[int(c["block_j"][i])],
+            "kind": KIND_NAMES.get(int(c["kind"][i]), str(int(c["kind"][i]))),
+            "mode": MODE_NAMES.get(int(c["mode"][i]), str(int(c["mode"][i]))),
+            "point_i": c["point_i"][i].tolist(), "point_j": c["point_j"][i].tolist(),
+            "normal": c["normal"][i].tolist(), "tangent": c["tangent"][i].tolist(),
+            "gap": float(c["gap"][i]), "normal_force": float(c["normal_force"][i]),
+            "shear_force": c["shear_force"][i].tolist(),
+        })
+    return {"step": int(steps[k]), "time": float(result.times[k]), "count": len(rows),
+            "contacts": rows}
+
+
+def contacts_csv(doc: dict[str, Any]) -> str:
+    """A `result_contacts_document` as CSV, one row per contact, vectors split into _x,
+    _y, _z; floats written with repr (round-trip exact)."""
+    vectors = ("point_i", "point_j", "normal", "tangent", "shear_force")
+    cols = ["step", "time", "block_i", "block_j", "kind", "mode"]
+    for v in ("point_i", "point_j", "normal", "tangent"):
+        cols += [f"{v}_{a}" for a in "xyz"]
+    cols += ["gap", "normal_force"] + [f"shear_force_{a}" for a in "xyz"]
+    buf = io.StringIO()
+    w = csv.writer(buf, lineterminator="\n")
+    w.writerow(cols)
+    for c in doc["contacts"]:
+        row: dict[str, Any] = {"step": doc["step"], "time": repr(doc["time"])}
+        for k, v in c.items():
+            if k in vectors:
+                row.update({f"{k}_{a}": repr(x) for a, x in zip("xyz", v, strict=True)})
+            else:
+                row[k] = repr(v) if isinstance(v, float) else v
+        w.writerow([row[k] for k in cols])
+    return buf.getvalue()
+
+
+# --------------------------------------------------------------------------- runs
+
+
+def run_summary(summary: dict[str, Any], build: BuildResult) -> dict[str, Any]:
+    """The engine's run summary with the scene's block names (`blocks[k].name`,
+    `block_names`) and every warning: the build's (cutting, fixed blocks) first, then the
+    engine's (soft penalty, ...); NaN and infinities as null."""
+    doc = dict(summary)
+    doc["blocks"] = [dict(b) for b in summary.get("blocks", [])]
+    for b, name in zip(doc["blocks"], build.block_names, strict=False):
+        b["name"] = name
+    doc["block_names"] = list(build.block_names)
+    doc["warnings"] = list(dict.fromkeys([*build.warnings, *summary.get("warnings", [])]))
+    return finite(doc)
+
+
+def fos_controls(build: BuildResult) -> StrengthReductionControls:
+    """Strength-reduction controls from the scene's `analysis.factor_of_safety` (built by
+    the schema with the engine's defaults): times, tolerance, bounds, the weakened joint
+    materials and the watched blocks."""
+    from engine.analyses import StrengthReductionControls
+
+    return build.factor_of_safety or StrengthReductionControls()
+
+
+def fos_document(result: FactorOfSafetyResult, build: BuildResult) -> dict[str, Any]:
+    """The factor-of-safety answer: factor, critical friction angle(s), trials, status,
+    and the names of the joint materials weakened and the blocks watched."""
+    doc = result.as_dict()
+    c = fos_controls(build)
+    jm = c.joint_materials if c.joint_materials is not None else range(
+        len(build.joint_material_names))
+    doc["joint_materials"] = [build.joint_material_names[k] for k in jm]
+    watched = c.watch_blocks if c.watch_blocks is not None else [
+        k for k, b in enumerate(build.model.blocks) if not b.fixed]
+    doc["watch_blocks"] = [build.block_names[k] for k in watched]
+    doc["warnings"] = list(build.warnings)
+    return finite(doc)

@@ -1,0 +1,151 @@
+"""The process registry: every process the service runs (and the CLI names), in one place.
+
+A :class:`Process` says what it is (id, title, description), what it writes (artifacts, the
+main JSON one and its key in the results document), which scene `analysis.type` makes it
+the default of `POST /jobs`, and how it runs (`run`: scene build -> files in the job
+directory -> Outcome). The API's routes, its OpenAPI enums, the results document, the job
+function and `polydda submit --process` all read this table.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+from typing import TYPE_CHECKING, Literal
+
+from service.documents import (
+    blocks_document,
+    finite,
+    fos_controls,
+    fos_document,
+    run_summary,
+    write_json_atomic,
+)
+from service.tasks import MODEL, Cancelled, Outcome, TaskContext
+
+if TYPE_CHECKING:
+    from schemas.convert import BuildResult
+
+#: the HDF5 result of a simulation
+RESULT_FILE = "result.h5"
+
+Runner = Callable[["BuildResult", str, Path, TaskContext], Outcome]
+
+
+@dataclass(frozen=True)
+class Process:
+    """One process: its OGC description, its files and its runner."""
+
+    id: str
+    title: str
+    description: str
+    #: files a job of this process may leave in its directory
+    artifacts: tuple[str, ...]
+    #: the main JSON artifact and its key in the results document
+    main_artifact: str
+    result_key: str
+    #: the scene `analysis.type` for which this is the default process of POST /jobs
+    analysis_type: str | None
+    run: Runner
+
+
+def _simulation(build: BuildResult, scene_text: str, job_dir: Path,
+                ctx: TaskContext) -> Outcome:
+    from engine.results import ResultWriter
+    from engine.simulation import STATUS_CANCELLED, STATUS_COMPLETED, Progress, run
+    from schemas.scene import SCHEMA_VERSION
+
+    def progress(p: Progress) -> None:
+        ctx.report(100.0 * p.fraction, step=p.step, simulated_time=p.time,
+                   duration=p.duration)
+
+    ctx.report(0.0, force=True, step=0, simulated_time=0.0,
+               duration=build.model.controls.duration)
+    writer = ResultWriter(job_dir / RESULT_FILE, overwrite=True, schema_version=SCHEMA_VERSION,
+                          record_contacts=build.model.controls.record_contacts)
+    res = run(build.model, recorder=writer, progress=progress, should_stop=ctx.should_stop,
+              scene_json=scene_text)
+    write_json_atomic(job_dir / "summary.json", run_summary(res.summary, build))
+    s = res.summary
+    ctx.report(100.0 * min(1.0, s["simulated_time"] / build.model.controls.duration),
+               force=True, step=s["steps"], simulated_time=s["simulated_time"])
+    if res.status == STATUS_COMPLETED:
+        return Outcome("successful", f"completed {res.steps} steps")
+    if res.status == STATUS_CANCELLED:
+        return Outcome("dismissed", f"cancelled at t = {s['simulated_time']:.6g} s after "
+                                    f"{res.steps} steps; partial results kept")
+    return Outcome("failed", f"model problem: {res.message}", MODEL)
+
+
+def _factor_of_safety(build: BuildResult, scene_text: str, job_dir: Path,
+                      ctx: TaskContext) -> Outcome:
+    from engine.analyses import TrialRun, factor_of_safety
+
+    controls = fos_controls(build)
+    runs: list[TrialRun] = []
+
+    def progress(r: TrialRun) -> None:
+        runs.append(r)
+        verdict = "fails" if r.failed else "holds"
+        ctx.report(100.0 * len(runs) / controls.max_runs, force=True, step=len(runs),
+                   message=f"trial {len(runs)}: reduction factor {r.factor:.4g} {verdict}")
+        if ctx.should_stop():
+            raise Cancelled
+
+    ctx.report(0.0, force=True, message="first trial running")
+    try:
+        result = factor_of_safety(build.model, controls, progress=progress)
+    except Cancelled:
+        write_json_atomic(job_dir / "fos.json", finite({
+            "status": "cancelled", "runs": [r.__dict__ for r in runs],
+            "message": f"cancelled after {len(runs)} trials"}))
+        return Outcome("dismissed", f"cancelled after {len(runs)} trials; partial results kept")
+    write_json_atomic(job_dir / "fos.json", fos_document(result, build))
+    ctx.report(100.0, force=True, step=len(result.runs))
+    if result.status == "completed":
+        return Outcome("successful", f"factor of safety {result.factor_of_safety:.4g}"
+                       + (f" ({result.message})" if result.message else ""))
+    return Outcome("failed", f"model problem: {result.message}", MODEL)
+
+
+def _block_cutting(build: BuildResult, scene_text: str, job_dir: Path,
+                   ctx: TaskContext) -> Outcome:
+    write_json_atomic(job_dir / "blocks.json", blocks_document(build))
+    ctx.report(100.0, force=True)
+    n = len(build.model.blocks)
+    return Outcome("successful", f"{n} block{'s' if n != 1 else ''}")
+
+
+PROCESSES: dict[str, Process] = {p.id: p for p in (
+    Process("simulation", "DDA simulation",
+            "Run the scene's blocks through time (3-D DDA) and record every recorded step "
+            "in an HDF5 result file (VTKHDF for ParaView).",
+            ("summary.json", RESULT_FILE), "summary.json", "summary", "simulation",
+            _simulation),
+    Process("factor-of-safety", "Factor of safety (strength reduction)",
+            "Divide the joints' strength by trial factors and find by bisection the factor "
+            "at which the watched blocks start to accelerate (the scene's "
+            "analysis.factor_of_safety: watched blocks, joint materials, times).",
+            ("fos.json",), "fos.json", "factor_of_safety", "factor_of_safety",
+            _factor_of_safety),
+    Process("block-cutting", "Block cutting",
+            "Cut the domain by the joints and list the blocks (volume, centroid, vertices, "
+            "faces); nothing is run.",
+            ("blocks.json",), "blocks.json", "blocks", None, _block_cutting),
+)}
+PROCESS_IDS: tuple[str, ...] = tuple(PROCESSES)
+#: the process ids as a type (query parameters, OpenAPI enums)
+ProcessId = Literal[PROCESS_IDS]  # type: ignore[valid-type]
+
+
+#: process id -> its main JSON artifact
+MAIN_ARTIFACTS: dict[str, str] = {p.id: p.main_artifact for p in PROCESSES.values()}
+
+
+def default_process(analysis_type: str) -> str:
+    """The process POST /jobs runs for a scene of this `analysis.type` (else simulation)."""
+    for p in PROCESSES.values():
+        if p.analysis_type == analysis_type:
+            return p.id
+    return "simulation"
