@@ -2,10 +2,12 @@
 and regenerate REPORT.md, the charts and the CSVs.
 
 Sections: accuracy (cases incline, wedge0, wedge10, fall, pushed can be named alone),
-peers, stability (or one of its cases by name), scaling, savings, components (cutting and
-contact detection on their own). The quick default runs a
-small grid of each; `--full` runs everything. Sections not run keep their previous numbers
-(stored in `results/<section>.json`), and the report says when they were made.
+peers, stability (or one of its cases by name), trust (the stability map v2 of issue 12:
+start states, the examples' own Δt and penalty, the jointed slope; or one of its scenes by
+name), scaling, savings, components (cutting and contact detection on their own). The
+quick default runs a small grid of each; `--full` runs everything. Sections not run keep
+their previous numbers (stored in `results/<section>.json`), and the report says when they
+were made.
 """
 
 from __future__ import annotations
@@ -22,10 +24,12 @@ from typing import Any
 
 import numpy as np
 
-from benchmarks import cases, components, peers, scaling, stability
+from benchmarks import cases, components, peers, scaling, stability, trust
 from benchmarks import harness as h
 
-SECTIONS = ("accuracy", "peers", "stability", "scaling", "savings", "components")
+SECTIONS = ("accuracy", "peers", "stability", "trust", "scaling", "savings", "components")
+#: scenes of the trust section that can be named alone
+TRUST_NAMES = (*trust.MAP_SCENES, *trust.EXAMPLE_SWEEPS, "jointed_slope")
 
 
 def _g(x: Any, digits: int = 3) -> str:
@@ -192,6 +196,56 @@ def stability_part(st: dict[str, Any], chart: str) -> tuple[str, list[tuple[str,
     return "\n".join(lines), failures
 
 
+def trust_part(tr: dict[str, Any], chart: str) -> tuple[str, list[tuple[str, str]]]:
+    """Section 3b: the stability map v2 (issue 12)."""
+    rows = tr["rows"]
+    lines = ["## 3b. Stability map v2: the scenes users build, started as real models start",
+             "", _esc(trust.__doc__.split("\n\n", 1)[1].replace("\n", " ")).strip(), "",
+             f"Map runs simulate 3,000 steps, between 0.1 and 0.5 s; wall cap "
+             f"{tr['wall_cap']:g} s per run. Energy created: the largest rise of kinetic + "
+             "stored − work of gravity and loads above its start (from the recorded frames), "
+             "as a fraction of gravity's largest work in the run.", ""]
+    table = []
+    for case in dict.fromkeys(r["case"] for r in rows):
+        rs = [r for r in rows if r["case"] == case]
+        count = {v: sum(r["verdict"] == v for r in rs) for v in trust.COLOURS}
+        worst = max((r["created_ratio"] for r in rs if math.isfinite(r["created_ratio"])),
+                    default=float("nan"))
+        table.append([case, _esc(tr["scenes"].get(case, "")), len(rs), count[trust.PASS],
+                      count[trust.FAILED], count[trust.STOPPED],
+                      count[trust.WRONG] + count[trust.BLEW_UP], _g(worst)])
+    lines.append(_table(["scene", "what", "runs", "pass", "failed (clear status)",
+                         "stopped", "silent failures", "largest energy created"], table))
+    lines += ["", f"![trust](results/{chart})", "", "Every run:", ""]
+    lines.append(_table(
+        ["scene", "start / sweep", "Δt (s)", "k (N/m)", "verdict", "detail", "created",
+         "steps", "wall (s)"],
+        [[r["case"], r.get("start", r.get("sweep", "")), r["dt"], r["penalty"], r["verdict"],
+          _esc(r["detail"] + (f" — {r['message']}" if r["message"] else "")),
+          r["created_ratio"], r["steps"], f"{r['wall_s']:.2f}"] for r in rows]))
+    failures = []
+    for r in rows:
+        if r["verdict"] == trust.PASS:
+            continue
+        if r["group"] == "map":
+            repro = ("python -c \"from benchmarks.trust import MAP_SCENES, run_map_one; "
+                     f"print(run_map_one(MAP_SCENES['{r['case']}'], {r['dt']!r}, "
+                     f"{r['penalty']!r}, '{r['start']}'))\"")
+        elif r["group"] == "example":
+            repro = ("python -c \"from benchmarks.trust import EXAMPLE_SWEEPS, "
+                     f"run_example_one; print(run_example_one(EXAMPLE_SWEEPS['{r['case']}'], "
+                     f"{r['dt_factor']!r}, {r['k_factor']!r}))\"")
+        else:
+            repro = "python -m benchmarks --only jointed_slope"
+        kind = {trust.WRONG: "silent", trust.BLEW_UP: "silent", trust.STOPPED: "slow"}.get(
+            r["verdict"], "clean")
+        failures.append((kind, f"**{r['case']}** ({r.get('start', r.get('sweep', ''))}), "
+                               f"Δt {r['dt']:g}, k {r['penalty']:g}: {r['verdict']} after "
+                               f"{r['steps']} steps — {_esc(r['message'] or r['detail'])}. "
+                               f"Reproduce: `{repro}`"))
+    return "\n".join(lines), failures
+
+
 def scaling_part(sc: dict[str, Any], chart: str, pe: dict[str, Any] | None,
                  st: dict[str, Any] | None = None) -> tuple[str, list[tuple[str, str]]]:
     steps = sc["pile_steps"]
@@ -326,6 +380,7 @@ def write_report(out: Path, report: Path, meta: dict[str, Any]) -> None:
     acc = h.load_json(out, "accuracy")
     pe = h.load_json(out, "peers")
     st = h.load_json(out, "stability")
+    tr = h.load_json(out, "trust")
     sc = h.load_json(out, "scaling")
     sv = h.load_json(out, "savings")
     m = meta["machine"]
@@ -361,6 +416,12 @@ def write_report(out: Path, report: Path, meta: dict[str, Any]) -> None:
         failures += fl
     else:
         parts += ["## 3. Stability map", "", "(section not run)", ""]
+    if tr:
+        text, fl = trust_part(tr, trust.plot_trust(out, tr))
+        parts += [text, ""]
+        failures += fl
+    else:
+        parts += ["## 3b. Stability map v2", "", "(section not run)", ""]
     if sc:
         text, fl = scaling_part(sc, scaling.plot_scaling(out, sc, pe), pe, st)
         parts += [text, ""]
@@ -400,7 +461,7 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--full", action="store_true", help="run the full grids (long)")
     p.add_argument("--only", nargs="+", default=None,
                    help="sections or case names: " + ", ".join(
-                       [*SECTIONS, *cases.CASES, *stability.STAB_CASES]))
+                       [*SECTIONS, *cases.CASES, *stability.STAB_CASES, *TRUST_NAMES]))
     p.add_argument("--out", type=Path, default=h.RESULTS, help="results directory")
     p.add_argument("--report", type=Path, default=None, help="report path "
                    "(default benchmarks/REPORT.md, or OUT/REPORT.md with --out)")
@@ -413,8 +474,9 @@ def main(argv: list[str] | None = None) -> int:
     only = args.only or list(SECTIONS)
     acc_cases = [o for o in only if o in cases.CASES]
     stab_cases = [o for o in only if o in stability.STAB_CASES and o not in cases.CASES]
+    trust_names = [o for o in only if o in TRUST_NAMES and o not in stability.STAB_CASES]
     unknown = [o for o in only if o not in SECTIONS and o not in cases.CASES
-               and o not in stability.STAB_CASES]
+               and o not in stability.STAB_CASES and o not in TRUST_NAMES]
     if unknown:
         p.error(f"unknown section or case: {', '.join(unknown)}")
     out.mkdir(parents=True, exist_ok=True)
@@ -439,6 +501,10 @@ def main(argv: list[str] | None = None) -> int:
         stability.run_stability(out, args.full, stab_cases or None)
         ran.append("stability" + (f" ({', '.join(stab_cases)})" if stab_cases else ""))
         stamps["stability"] = f"{mode}, {now}"
+    if "trust" in only or trust_names:
+        trust.run_trust(out, args.full, trust_names or None)
+        ran.append("trust" + (f" ({', '.join(trust_names)})" if trust_names else ""))
+        stamps["trust"] = f"{mode}, {now}"
     if "scaling" in only:
         print("[scaling]", flush=True)
         scaling.run_scaling(out, args.full)

@@ -88,7 +88,6 @@ def _work(system: BlockSystem, state: State, res: StepResult) -> dict[str, float
         e["external_work"] += float(f @ (t @ d[b]))
     e["friction_dissipation"] += res.friction_work
     e["numerical_dissipation"] += res.numerical_dissipation
-    e["damping_dissipation"] += res.damping_dissipation
     return e
 
 

@@ -148,7 +148,6 @@ class StepResult:
     iterations: int
     mode_changes: int = 0
     numerical_dissipation: float = 0.0
-    damping_dissipation: float = 0.0
     broken: np.ndarray | None = None
 
 
