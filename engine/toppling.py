@@ -79,8 +79,6 @@ def base_reaction_arm(p_n: float, p_nm1: float, w: float, y: float, m: float, el
                       dx: float, psi_p: float, phi_d: float) -> float:
     """K_n: where R_n acts, measured up-dip from the toe corner (moment balance); 0 for a
     toppling column, and a column that does not topple needs 0 ≤ K_n ≤ Δx."""
-    if not np.isfinite(p_nm1):  # nothing toe-side can hold the column
-        return float("nan")
     r, _ = base_reactions(p_n, p_nm1, w, psi_p, phi_d)
     return (p_nm1 * ell - overturning_moment(p_n, w, y, m, dx, psi_p, phi_d)) / r
 
@@ -125,9 +123,12 @@ def goodman_bray(y: np.ndarray, m: np.ndarray, ell: np.ndarray, dx: float, psi_p
             mode[k] = TOPPLE if p_t > p_s else SLIDE
         p_nm1 = max(p, 0.0)
         out["thrust"][k], out["toppling"][k], out["sliding"][k] = p, p_t, p_s
-        out["normal"][k], out["shear"][k] = base_reactions(p_n, p_nm1, w[k], psi_p, phi_d)
-        out["arm"][k] = base_reaction_arm(p_n, p_nm1, w[k], y[k], m[k], ell[k], dx, psi_p,
-                                          phi_d)
+        if np.isfinite(p_nm1):
+            out["normal"][k], out["shear"][k] = base_reactions(p_n, p_nm1, w[k], psi_p, phi_d)
+            out["arm"][k] = base_reaction_arm(p_n, p_nm1, w[k], y[k], m[k], ell[k], dx,
+                                              psi_p, phi_d)
+        else:  # nothing toe-side can hold it
+            out["normal"][k] = out["shear"][k] = out["arm"][k] = np.nan
         p_n = p_nm1
     return ToppleResult(mode=mode, **out)
 
@@ -144,7 +145,7 @@ def critical_friction_angle(y: np.ndarray, m: np.ndarray, ell: np.ndarray, dx: f
 
     # P_0 falls as φ grows; the sliding term needs tan φ_p tan φ_d < 1
     lo = 1e-6
-    hi = np.arctan(1.0 / np.sqrt(interface_ratio)) - 1e-9
+    hi = (np.arctan(1.0 / np.sqrt(interface_ratio)) if interface_ratio > 0 else 0.5 * np.pi) - 1e-9
     if toe(lo) <= 0.0:
         return lo
     if toe(hi) > 0.0:
