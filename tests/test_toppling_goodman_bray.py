@@ -160,9 +160,9 @@ def test_modes_below_the_critical_angle(built) -> None:
 
 @pytest.mark.slow
 @pytest.mark.xfail(strict=True, reason=(
-    "not converged in the contact law (README validation table): at the scene-derived "
-    "penalty 1e13 N/m strength reduction gives φc 38.74°, and 32.33 / 34.84° at 1e11 / "
-    "1e12, against limit equilibrium's 33.93° ± 1°"))
+    "Δt does not resolve the default contact springs (README validation table): at the "
+    "scene-derived penalty 1e13 N/m and Δt 1e-3 (ωΔt ≈ 4.5) strength reduction gives φc "
+    "38.74°; at 1e13 and Δt 3e-4 33.89°, against limit equilibrium's 33.93° ± 1°"))
 def test_strength_reduction_brackets_the_limit_equilibrium_angle(built) -> None:
     """The strength-reduction criterion (sustained acceleration, the scene's window)
     holds 1° above the limit-equilibrium critical angle and fails 1° below: the factor of
