@@ -95,6 +95,7 @@ CASES: dict[str, Callable[[], Model]] = {
     "wedge_trough": _example("wedge_trough", duration=0.2),
     "block_system": _example("block_system", duration=0.02),
     "toppling": _example("toppling", duration=0.05),
+    "toppling_goodman_bray": _example("toppling_goodman_bray", duration=0.05),
     "incline": _example("incline", duration=0.5),
     "free_fall": _example("free_fall", duration=0.8),
     "pushed_block": _example("pushed_block", duration=0.3),
