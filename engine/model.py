@@ -83,6 +83,21 @@ class FixedPoint:
 
 
 @dataclass(frozen=True)
+class SeismicLoad:
+    """Pseudo-static seismic coefficients: `kh` (horizontal, fraction of g) pointing to
+    `azimuth_rad` (clockwise from North) and `kv` (vertical, fraction of g, positive up)."""
+
+    kh: float = 0.0
+    azimuth_rad: float = 0.0
+    kv: float = 0.0
+
+    def acceleration(self, g: float) -> np.ndarray:
+        """The body force per unit mass (m/s², (3,)) for gravity of magnitude `g` m/s²."""
+        return g * np.array([self.kh * np.sin(self.azimuth_rad),
+                             self.kh * np.cos(self.azimuth_rad), self.kv])
+
+
+@dataclass(frozen=True)
 class AnalysisControls:
     """How to run: time, penalties, iteration limits, block model.
 
@@ -142,6 +157,24 @@ class StrengthReductionControls:
     watch_blocks: tuple[int, ...] | None = None
 
 
+@dataclass(frozen=True)
+class SeismicCoefficientControls:
+    """Settings of the critical (yield) seismic coefficient search: bisection on kh (the
+    scene's azimuth and kv kept) with the strength-reduction trial criterion (sustained
+    acceleration of the watched blocks over `[window_start, observation_time]` s above
+    `acceleration_threshold` m/s²), up to `max_coefficient`; stops when the bracket is
+    narrower than `tolerance` relative to kh or after `max_runs` trials."""
+
+    observation_time: float = 3.0
+    window_start: float = 1.0
+    acceleration_threshold: float = 0.01
+    tolerance: float = 0.005
+    max_coefficient: float = 1.0
+    max_runs: int = 30
+    #: blocks whose acceleration decides failure (None: every block that is not fixed)
+    watch_blocks: tuple[int, ...] | None = None
+
+
 @dataclass
 class Model:
     """Everything the engine needs to run a scene.
@@ -160,7 +193,18 @@ class Model:
     gravity: np.ndarray = field(default_factory=lambda: np.array([0.0, 0.0, -9.81]))
     point_loads: list[PointLoad] = field(default_factory=list)
     fixed_points: list[FixedPoint] = field(default_factory=list)
+    #: pseudo-static seismic body force on every block (None: none)
+    seismic: SeismicLoad | None = None
     controls: AnalysisControls = field(default_factory=AnalysisControls)
+
+    @property
+    def body_acceleration(self) -> np.ndarray:
+        """Acceleration (m/s², (3,)) of the body forces: gravity plus the pseudo-static
+        seismic coefficients times |gravity| (gravity itself when there are none)."""
+        if self.seismic is None:
+            return self.gravity
+        g = np.asarray(self.gravity, float)
+        return g + self.seismic.acceleration(float(np.linalg.norm(g)))
 
     @property
     def scale(self) -> float:

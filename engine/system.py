@@ -32,6 +32,8 @@ class BlockSystem:
     - `max_step_displacement` m: no point moves more in a step; `search_distance` m
     - `touch_gap` m: closer blocks touch; `open_close_gap` m: the open-close hysteresis
     - `tan_phi`, `cohesion` (Pa), `tension` (Pa) per joint material
+    - `gravity` m/s²: body force per unit mass (gravity plus any pseudo-static seismic
+      load, :attr:`engine.model.Model.body_acceleration`)
     - `loads`: (block, point m, force N) per point load; `fixed_points`: (block, point m)
     - `energy_floor` J: spring energies below it are round-off; `energy_round_off` J: the
       energy balance's round-off (1e-10 of the free blocks' potential energy over the
@@ -175,13 +177,14 @@ def build_system(model: Model, adaptive_search: bool = True) -> BlockSystem:
                     for ld in model.point_loads),
         fixed_points=tuple((fp.block, np.asarray(fp.point, float))
                            for fp in model.fixed_points),
-        gravity=model.gravity,
+        gravity=model.body_acceleration,
         # J: energy differences below this are round-off (1e-6 of the model's potential
         # energy scale or of a spring pressed by a whole step limit)
         energy_floor=1e-6 * max(
-            float(np.sum((density * volume0)[~fixed])) * float(np.linalg.norm(model.gravity))
+            float(np.sum((density * volume0)[~fixed]))
+            * float(np.linalg.norm(model.body_acceleration))
             * scale, 0.5 * kn * max_step**2),
         energy_round_off=1e-10 * float(np.sum((density * volume0)[~fixed]))
-        * float(np.linalg.norm(model.gravity)) * scale,
+        * float(np.linalg.norm(model.body_acceleration)) * scale,
         adaptive_search=adaptive_search,
     )

@@ -36,12 +36,15 @@ from engine.model import (
     Material,
     Model,
     PointLoad,
+    SeismicCoefficientControls,
+    SeismicLoad,
     StrengthReductionControls,
 )
 from engine.tolerances import DEFAULT_TOLERANCES
 from schemas.errors import Problems, SceneError, fmt_point
 from schemas.scene import (
     BoxSpec,
+    CriticalSeismicSpec,
     FactorOfSafetySpec,
     Scene,
     Selection,
@@ -71,6 +74,7 @@ class BuildResult:
     joint_names: list[str]
     warnings: list[str] = field(default_factory=list)
     factor_of_safety: StrengthReductionControls | None = None
+    seismic_coefficient: SeismicCoefficientControls | None = None
 
     def block_index(self, name: str) -> int:
         """Index of the block called `name` (KeyError if none)."""
@@ -525,6 +529,22 @@ def build_model(scene: Scene | str | Path | dict[str, Any]) -> BuildResult:
             acceleration_threshold=spec.acceleration_threshold, tolerance=spec.tolerance,
             min_factor=spec.min_factor, max_factor=spec.max_factor, max_runs=spec.max_runs,
             joint_materials=tuple(sorted(set(weak))), watch_blocks=tuple(sorted(set(watch))))
+    kc = None
+    kspec = scene.analysis.critical_seismic_coefficient
+    if kspec is None and scene.analysis.type == "critical_seismic_coefficient":
+        kspec = CriticalSeismicSpec()
+    if kspec is not None:
+        watch = []
+        for k, sel in enumerate(kspec.watch):
+            watch.extend(find.select(
+                sel, f"analysis.critical_seismic_coefficient.watch[{k}]", p))
+        if not watch:
+            watch = [k for k, b in enumerate(blocks) if not b.fixed]
+        kc = SeismicCoefficientControls(
+            observation_time=kspec.observation_time, window_start=kspec.window_start,
+            acceleration_threshold=kspec.acceleration_threshold, tolerance=kspec.tolerance,
+            max_coefficient=kspec.max_coefficient, max_runs=kspec.max_runs,
+            watch_blocks=tuple(sorted(set(watch))))
     p.raise_if_any()
 
     if all(b.fixed for b in blocks):
@@ -560,6 +580,9 @@ def build_model(scene: Scene | str | Path | dict[str, Any]) -> BuildResult:
         },
         pair_joint_material=pairs,
         gravity=np.asarray(scene.gravity, float),
+        seismic=None if scene.seismic is None else SeismicLoad(
+            kh=scene.seismic.kh, azimuth_rad=float(np.radians(scene.seismic.azimuth)),
+            kv=scene.seismic.kv),
         point_loads=loads,
         fixed_points=fixed_points,
         controls=controls,
@@ -573,4 +596,5 @@ def build_model(scene: Scene | str | Path | dict[str, Any]) -> BuildResult:
         joint_names=[scene.joint_name(k) for k in range(len(scene.joints))],
         warnings=warnings,
         factor_of_safety=fos,
+        seismic_coefficient=kc,
     )

@@ -29,6 +29,7 @@ from engine.model import (
     AnalysisControls,
     JointMaterial,
     Material,
+    SeismicCoefficientControls,
     StrengthReductionControls,
 )
 from schemas.errors import (
@@ -48,6 +49,7 @@ _MATERIAL = Material()
 _JOINT = JointMaterial()
 _CONTROLS = AnalysisControls()
 _FOS = StrengthReductionControls()
+_KC = SeismicCoefficientControls()
 
 
 class Limits:
@@ -92,6 +94,9 @@ Dip = _between(0, 90, "degrees")
 DipDirection = _between(-360, 360, "degrees")
 PoissonRatio = _between(0, 0.5, "", hi_open=True)
 Ratio01 = _between(0, 1, "")
+Azimuth = _between(0, 360, "degrees")
+SeismicCoefficient = _between(0, 5, "")
+VerticalSeismicCoefficient = _between(-5, 5, "")
 Name = Annotated[str, Field(min_length=1, max_length=100)]
 
 
@@ -301,6 +306,22 @@ class BoundarySpec(_Model):
     point_loads: list[PointLoadSpec] = Field(default_factory=list)
 
 
+# --------------------------------------------------------------------------- loads
+
+
+class SeismicSpec(_Model):
+    """Pseudo-static seismic load: body forces kh·g·m horizontally toward `azimuth` and
+    kv·g·m vertically (positive up) on every block that moves (g = |gravity|)."""
+
+    kh: SeismicCoefficient = Field(0.0, description="horizontal seismic coefficient, "
+                                                    "fraction of g, 0 to 5")
+    azimuth: Azimuth = Field(0.0, description="degrees clockwise from North, 0 to 360: the "
+                                              "direction the horizontal force points")
+    kv: VerticalSeismicCoefficient = Field(0.0, description="vertical seismic coefficient, "
+                                                            "fraction of g, positive up, "
+                                                            "-5 to 5")
+
+
 # --------------------------------------------------------------------------- analysis
 
 
@@ -348,10 +369,45 @@ class FactorOfSafetySpec(_Model):
         return self
 
 
+class CriticalSeismicSpec(_Model):
+    """Critical (yield) seismic coefficient: bisect on kh (the scene's `seismic` azimuth and
+    kv kept, full joint strengths) for the kh at which the watched blocks start to
+    accelerate (the trial criterion of `factor_of_safety`)."""
+
+    tolerance: Positive = Field(_KC.tolerance, description="stop when the kh bracket is "
+                                                           "this narrow (relative)")
+    max_coefficient: SeismicCoefficient = Field(_KC.max_coefficient,
+                                                description="largest kh tried, 0 to 5")
+    observation_time: Positive = Field(_KC.observation_time, description="s simulated per "
+                                                                         "trial")
+    window_start: NonNegative = Field(_KC.window_start,
+                                      description="s; start of the averaging window")
+    acceleration_threshold: Positive = Field(
+        _KC.acceleration_threshold, description="m/s²; a trial whose watched blocks "
+                                                "accelerate more on average fails")
+    max_runs: Annotated[int, Field(ge=1, le=1000)] = Field(_KC.max_runs,
+                                                            description="trials at most")
+    watch: list[Target] = Field(
+        default_factory=list, description="blocks whose motion decides (default: all free)"
+    )
+
+    @model_validator(mode="after")
+    def _consistent(self) -> CriticalSeismicSpec:
+        if self.max_coefficient <= 0:
+            raise ValueError("max_coefficient must be positive")
+        if self.window_start >= self.observation_time:
+            raise ValueError(
+                f"window_start ({fmt_num(self.window_start)} s) must be before "
+                f"observation_time ({fmt_num(self.observation_time)} s)"
+            )
+        return self
+
+
 class AnalysisSpec(_Model):
     """How to run: time, contact penalties, integration mode, block model."""
 
-    type: Literal["simulation", "factor_of_safety"] = "simulation"
+    type: Literal["simulation", "factor_of_safety", "critical_seismic_coefficient"] = (
+        "simulation")
     duration: Positive = Field(_CONTROLS.duration, description="s simulated")
     time_step: Positive = Field(_CONTROLS.time_step, description="s, initial time step")
     min_time_step: Positive = Field(_CONTROLS.min_time_step,
@@ -401,6 +457,7 @@ class AnalysisSpec(_Model):
                     "instead of ringing on the penalty springs; 0 turns them off")
     record_contacts: bool = _CONTROLS.record_contacts
     factor_of_safety: FactorOfSafetySpec | None = None
+    critical_seismic_coefficient: CriticalSeismicSpec | None = None
 
     @model_validator(mode="after")
     def _times(self) -> AnalysisSpec:
@@ -457,6 +514,8 @@ class Scene(_Model):
     block_pairs: list[BlockPairSpec] = Field(default_factory=list)
     boundary: BoundarySpec = Field(default_factory=BoundarySpec)
     gravity: Vec3 = Field(default_factory=lambda: [0.0, 0.0, -9.81], description="m/s²")
+    seismic: SeismicSpec | None = Field(
+        None, description="pseudo-static seismic coefficients (none: no seismic load)")
     analysis: AnalysisSpec = Field(default_factory=AnalysisSpec)
 
     @model_validator(mode="after")
@@ -642,6 +701,10 @@ def scene_problems(scene: Scene) -> list[dict[str, str]]:
     if fos is not None and fos.joint_materials is not None:
         for k, name in enumerate(fos.joint_materials):
             joint_material(f"analysis.factor_of_safety.joint_materials[{k}]", name)
+
+    if scene.analysis.type == "critical_seismic_coefficient" and scene.seismic is None:
+        p.add("seismic", "the critical_seismic_coefficient analysis needs 'seismic' with the "
+              "azimuth the horizontal force points to (and kv, if any)")
 
     # sizes, before any heavy work
     nv = _count_vertices(scene)
