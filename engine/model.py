@@ -83,6 +83,30 @@ class FixedPoint:
 
 
 @dataclass(frozen=True)
+class Bolt:
+    """A rock bolt or cable from `head (3,)` m on block `block` to `anchor (3,)` m on block
+    `anchor_block` (-1: the ground, a point that never moves).
+
+    Axial and shear stiffness (N/m), pretension (N, tension), axial `capacity` (N, the
+    yield force; inf: none), `shear_capacity` (N; None: the axial capacity) and
+    `rupture_displacement` (m: the bolt breaks when its ends have moved apart by more since
+    installation; inf: never). See :mod:`engine.bolts`.
+    """
+
+    block: int
+    head: np.ndarray
+    anchor: np.ndarray
+    anchor_block: int = -1
+    axial_stiffness: float = 1e8
+    shear_stiffness: float = 0.0
+    pretension: float = 0.0
+    capacity: float = float("inf")
+    shear_capacity: float | None = None
+    rupture_displacement: float = float("inf")
+    name: str = ""
+
+
+@dataclass(frozen=True)
 class SeismicLoad:
     """Pseudo-static seismic coefficients: `kh` (horizontal, fraction of g) pointing to
     `azimuth_rad` (clockwise from North) and `kv` (vertical, fraction of g, positive up)."""
@@ -193,6 +217,8 @@ class Model:
     gravity: np.ndarray = field(default_factory=lambda: np.array([0.0, 0.0, -9.81]))
     point_loads: list[PointLoad] = field(default_factory=list)
     fixed_points: list[FixedPoint] = field(default_factory=list)
+    #: rock bolts and cables
+    bolts: list[Bolt] = field(default_factory=list)
     #: pseudo-static seismic body force on every block (None: none)
     seismic: SeismicLoad | None = None
     controls: AnalysisControls = field(default_factory=AnalysisControls)

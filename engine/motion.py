@@ -9,6 +9,7 @@ import dataclasses
 import numpy as np
 
 from engine import assembly as asm
+from engine import bolts
 from engine._motion_kernels import block_vertices, move_blocks
 from engine.contacts import LOCKED, OPEN
 from engine.geometry import Polyhedron
@@ -132,6 +133,27 @@ def _penetrations(system: BlockSystem, state: State, res: StepResult
     return deepest, dataclasses.replace(d, max_penetration=pen, max_penetration_ratio=ratio)
 
 
+def bolt_energy(system: BlockSystem, state: State) -> float:
+    """Energy (J) the rock bolts of the state hold (0 without bolts)."""
+    if system.bolts is None:
+        return 0.0
+    head, anchor = bolts.bolt_ends(system.bolts, system.c0, state.centroid, state.affine)
+    return bolts.stored_energy(system.bolts, head, anchor, state.bolt_plastic,
+                               state.bolt_shear, state.bolt_status)
+
+
+def _advance_bolts(system: BlockSystem, state: State, after: State, d: np.ndarray) -> None:
+    """The bolts' plastic elongation, shear force and state after the step `d`, and the
+    energy dissipated in them (implicit springs, yield, rupture) with the integrator's."""
+    from engine.block_terms import bolts_now
+
+    plastic, shear, status, dissipated = bolts.update(
+        system.bolts, bolts_now(system, state), d, system.c0, after.centroid, after.affine,
+        state.bolt_plastic, state.bolt_shear, state.bolt_status, bolt_energy(system, state))
+    after.bolt_plastic, after.bolt_shear, after.bolt_status = plastic, shear, status
+    after.energies["numerical_dissipation"] += dissipated
+
+
 def advance(system: BlockSystem, state: State, res: StepResult, dt: float) -> State:
     """The state after the converged step `res` of `dt` s: blocks moved with the exact
     rotation, velocities `2 d / Δt − v0` (times the dynamic ratio; the kinetic energy that
@@ -154,6 +176,8 @@ def advance(system: BlockSystem, state: State, res: StepResult, dt: float) -> St
         memory=_memory(system, res), last_d=d, deepest=deepest,
         energies=_work(system, state, res), contact_energy=spring_energy(system, res),
         diagnostics=diagnostics)
+    if system.bolts is not None:
+        _advance_bolts(system, state, after, d)
     ratio = system.controls.dynamic_ratio
     if ratio != 1.0:
         kinetic = 0.5 * float(np.einsum("ni,nij,nj->", v1, mass_matrices(system, after), v1))

@@ -12,6 +12,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from engine import assembly as asm
+from engine.bolts import BoltSet, bolt_set
 from engine.geometry import Polyhedron
 from engine.model import AnalysisControls, Model
 from engine.tolerances import DEFAULT_TOLERANCES
@@ -39,6 +40,7 @@ class BlockSystem:
       energy balance's round-off (1e-10 of the free blocks' potential energy over the
       model's size)
     - `adaptive_search`: search each step within its own predicted limit
+    - `bolts`: the rock bolts and cables (None: none), :mod:`engine.bolts`
     """
 
     model: Model
@@ -78,6 +80,7 @@ class BlockSystem:
     energy_floor: float
     energy_round_off: float
     adaptive_search: bool = True
+    bolts: BoltSet | None = None
 
     @property
     def controls(self) -> AnalysisControls:
@@ -187,4 +190,5 @@ def build_system(model: Model, adaptive_search: bool = True) -> BlockSystem:
         energy_round_off=1e-10 * float(np.sum((density * volume0)[~fixed]))
         * float(np.linalg.norm(model.body_acceleration)) * scale,
         adaptive_search=adaptive_search,
+        bolts=bolt_set(model.bolts) if model.bolts else None,
     )
