@@ -306,6 +306,68 @@ class BoundarySpec(_Model):
     point_loads: list[PointLoadSpec] = Field(default_factory=list)
 
 
+class _BoltProperties(_Model):
+    """What a rock bolt or cable is made of (SI units)."""
+
+    axial_stiffness: NonNegative = Field(
+        3e7, description="N/m, axial spring of the whole free length (default: a 25 mm steel "
+                         "bar 3 m long, EA/L); 0: a constant-force tendon")
+    shear_stiffness: NonNegative = Field(
+        0.0, description="N/m, transverse spring at the head (default 0: a cable)")
+    pretension: NonNegative = Field(0.0, description="N, tension at installation")
+    capacity: Positive | None = Field(
+        None, description="N, axial yield force (default: unlimited); |force| stays below it "
+                          "and the excess becomes plastic elongation")
+    shear_capacity: Positive | None = Field(
+        None, description="N, transverse yield force (default: the axial capacity)")
+    rupture_displacement: Positive | None = Field(
+        None, description="m; the bolt breaks (and stops acting) when its two ends have "
+                          "moved apart by more since installation (default: never)")
+
+    @model_validator(mode="after")
+    def _pretension_below_capacity(self) -> _BoltProperties:
+        if self.capacity is not None and self.pretension > self.capacity:
+            raise ValueError(f"pretension ({fmt_num(self.pretension)} N) must not exceed "
+                             f"capacity ({fmt_num(self.capacity)} N)")
+        return self
+
+
+class BoltSpec(_BoltProperties):
+    """A rock bolt or cable from `head` (a point on or in `block`) to `anchor`: a point in
+    `anchor_block`, by default the block other than the head's that contains the anchor,
+    or the ground (a point that never moves) when no block contains it."""
+
+    name: Name | None = Field(None, description="default bolt1, bolt2, ... by position")
+    head: Vec3 = Field(description="m, where the bolt's plate bears on the block")
+    anchor: Vec3 = Field(description="m, the anchored end")
+    block: Target | None = Field(None, description="the head's block (default: the block "
+                                                   "at `head`)")
+    anchor_block: Target | None = Field(None, description="the anchor's block (default: "
+                                                          "found at `anchor`, else ground)")
+
+
+class BoltPatternSpec(_BoltProperties):
+    """A grid of identical bolts on a face: rows along `row_direction` `spacing` apart
+    (`rows` × `columns`, the second direction normal to it in the face), each `length` m
+    long, pointing into the rock along `trend` / `plunge` (degrees; plunge positive down).
+    Bolts are named `name_prefix` + 1, 2, ..."""
+
+    origin: Vec3 = Field(description="m, the head of the first bolt (on the face)")
+    face_normal: Vec3 = Field(description="outward normal of the face the heads are on")
+    row_direction: Vec3 = Field(description="a direction in the face along which a row runs")
+    spacing: Positive = Field(description="m between bolts along a row")
+    row_spacing: Positive | None = Field(None, description="m between rows (default: "
+                                                           "spacing)")
+    rows: Annotated[int, Field(ge=1, le=1000)] = 1
+    columns: Annotated[int, Field(ge=1, le=1000)] = Field(1, description="bolts per row")
+    length: Positive = Field(description="m, head to anchor")
+    trend: Azimuth = Field(description="degrees clockwise from North of the bolt's "
+                                       "direction into the rock")
+    plunge: _between(-90, 90, "degrees") = Field(description="degrees below horizontal of "
+                                                             "the bolt's direction")
+    name_prefix: Name = "bolt"
+
+
 # --------------------------------------------------------------------------- loads
 
 
@@ -516,6 +578,9 @@ class Scene(_Model):
     gravity: Vec3 = Field(default_factory=lambda: [0.0, 0.0, -9.81], description="m/s²")
     seismic: SeismicSpec | None = Field(
         None, description="pseudo-static seismic coefficients (none: no seismic load)")
+    bolts: list[BoltSpec] = Field(default_factory=list, description="rock bolts and cables")
+    bolt_patterns: list[BoltPatternSpec] = Field(
+        default_factory=list, description="grids of identical bolts on a face")
     analysis: AnalysisSpec = Field(default_factory=AnalysisSpec)
 
     @model_validator(mode="after")
