@@ -1,5 +1,5 @@
 """Shi's block terms of a step (THEORY.md): inertia of the constant-acceleration scheme,
-elasticity, initial stress, gravity, point loads, fixed points and rock bolts, on the
+elasticity, initial stress, gravity, point loads, fixed points, rock bolts and water, on the
 blocks' own unknowns; and the energy the implicit block springs dissipate in a step."""
 
 from __future__ import annotations
@@ -8,9 +8,10 @@ import numpy as np
 
 from engine import assembly as asm
 from engine.bolts import BoltStep, bolt_step
-from engine.motion import map_point, mass_matrices, mass_properties
+from engine.motion import current_polyhedra, map_point, mass_matrices, mass_properties
 from engine.state import State
 from engine.system import BlockSystem
+from engine.water import WaterLoads, water_loads
 
 
 def kinetic_energy(velocity: np.ndarray, mass: np.ndarray) -> float:
@@ -43,7 +44,23 @@ def block_terms(system: BlockSystem, state: State, dt: float
         fb[b] -= system.kf * t.T @ (p - p0)
     if system.bolts is not None:
         _add_bolts(system, bolts_now(system, state), kb, fb)
+    if system.water is not None:
+        w = water_now(system, state)
+        if len(w.block):
+            t = asm.displacement_matrices(w.point, state.centroid[w.block])
+            np.add.at(fb, w.block, np.einsum("qij,qi->qj", t, w.force))
     return kb, fb, mass
+
+
+def water_now(system: BlockSystem, state: State) -> WaterLoads:
+    """The water forces of the state (computed once per state)."""
+    hit = state.cache.get("water")
+    if hit is None:
+        m = system.model
+        hit = state.cache["water"] = water_loads(
+            system.water, current_polyhedra(system, state), system.fixed, system.scale,
+            m.pair_joint_material, m.joint_material_of_tag, m.default_joint_material)
+    return hit
 
 
 def bolts_now(system: BlockSystem, state: State) -> BoltStep:

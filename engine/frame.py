@@ -49,6 +49,7 @@ class Frame:
       `shear_force (c, 3)` N on block i
     - rock bolts (None without): `bolt_axial_force (b,)` N (tension positive),
       `bolt_shear_force (b,)` N, `bolt_status (b,)` (0 elastic, 1 yielded, 2 broken)
+    - `water_force (n, 3)` N: resultant water force on each block (None: a dry model)
     """
 
     step: int
@@ -68,6 +69,7 @@ class Frame:
     bolt_axial_force: np.ndarray | None = None
     bolt_shear_force: np.ndarray | None = None
     bolt_status: np.ndarray | None = None
+    water_force: np.ndarray | None = None
 
 
 class Recorder(Protocol):

@@ -107,6 +107,19 @@ class Bolt:
 
 
 @dataclass(frozen=True)
+class Water:
+    """Water in the joints: `unit_weight` (N/m³); a phreatic surface (a plane through
+    `surface_point (3,)` m with upward unit normal `surface_normal (3,)`, None: none) below
+    which the pressure is hydrostatic; a uniform pressure (Pa) per joint material index.
+    See :mod:`engine.water`."""
+
+    unit_weight: float = 9810.0
+    surface_point: np.ndarray | None = None
+    surface_normal: np.ndarray | None = None
+    joint_pressure: dict[int, float] = field(default_factory=dict)
+
+
+@dataclass(frozen=True)
 class SeismicLoad:
     """Pseudo-static seismic coefficients: `kh` (horizontal, fraction of g) pointing to
     `azimuth_rad` (clockwise from North) and `kv` (vertical, fraction of g, positive up)."""
@@ -219,6 +232,8 @@ class Model:
     fixed_points: list[FixedPoint] = field(default_factory=list)
     #: rock bolts and cables
     bolts: list[Bolt] = field(default_factory=list)
+    #: water pressure in the joints (None: dry)
+    water: Water | None = None
     #: pseudo-static seismic body force on every block (None: none)
     seismic: SeismicLoad | None = None
     controls: AnalysisControls = field(default_factory=AnalysisControls)

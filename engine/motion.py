@@ -87,6 +87,13 @@ def _work(system: BlockSystem, state: State, res: StepResult) -> dict[str, float
         t = asm.displacement_matrices(map_point(system, state, b, p0)[None],
                                       state.centroid[b][None])[0]
         e["external_work"] += float(f @ (t @ d[b]))
+    if system.water is not None:
+        from engine.block_terms import water_now
+
+        w = water_now(system, state)
+        if len(w.block):
+            t = asm.displacement_matrices(w.point, state.centroid[w.block])
+            e["external_work"] += float(np.einsum("qi,qij,qj->", w.force, t, d[w.block]))
     e["friction_dissipation"] += res.friction_work
     e["numerical_dissipation"] += res.numerical_dissipation
     e["damping_dissipation"] += res.damping_dissipation

@@ -44,6 +44,10 @@ def frame(system: BlockSystem, state: State, res: StepResult | None) -> Frame:
             system.bolts, system.c0, state.centroid, state.affine, state.bolt_plastic,
             state.bolt_shear, state.bolt_status)
         f.bolt_status = state.bolt_status.copy()
+    if system.water is not None:
+        from engine.block_terms import water_now
+
+        f.water_force = water_now(system, state).resultant.copy()
     if res is not None and system.controls.record_contacts:
         f.contacts = res.contacts
         f.normal_force = res.normal_force

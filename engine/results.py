@@ -28,6 +28,8 @@ n blocks, V surface vertices, F faces, C contacts in all):
   `anchor_block (b,)` (-1: the ground), `head (b,3)`, `anchor (b,3)` m, `pretension (b,)`,
   `capacity (b,)` N; per step `axial_force (K,b)` N (tension positive), `shear_force (K,b)` N,
   `status (K,b)` (0 elastic, 1 yielded, 2 broken)
+- `/water` (only for a model with water in its joints): per step `resultant (K,n,3)` N, the
+  resultant water force on each block
 - `/VTKHDF`: VTKHDF 2.2 temporal PolyData for ParaView (block faces as polygons, points
   written per step, connectivity shared by all steps; point data `block_id`,
   `displacement`, `velocity`; cell data `block_id`, `face_tag`)
@@ -329,6 +331,7 @@ class ResultWriter:
         self._nf = 0
         self._n_blocks = 0
         self._n_bolts = 0
+        self._water = False
         self._pending: list[_PendingStep] = []
         self._pending_bytes = 0
         self._last_flush = 0.0
@@ -491,6 +494,10 @@ class ResultWriter:
             for name, (_, dtype) in _BOLT_FIELDS.items():
                 self._ds(g, name, (nb,), dtype)
 
+        if model.water is not None:
+            self._water = True
+            self._ds(f.create_group("water"), "resultant", (n, 3), np.float64)
+
         self._begin_vtkhdf(f, n, nv)
         f.flush()
         f.swmr_mode = True
@@ -566,6 +573,9 @@ class ResultWriter:
             value = getattr(frame, attr)
             arrays[f"bolts/{name}"] = (np.full(self._n_bolts, np.nan) if value is None
                                        else np.array(value, dtype=dtype))
+        if self._water:
+            arrays["water/resultant"] = (np.full((n, 3), np.nan) if frame.water_force is None
+                                         else np.array(frame.water_force, float))
         contacts: dict[str, np.ndarray] = {}
         cs = frame.contacts
         c = 0 if cs is None or not self.record_contacts else len(cs)
@@ -646,6 +656,9 @@ class ResultWriter:
         if self._n_bolts:
             writes += [(f"bolts/{name}", np.stack([p.arrays[f"bolts/{name}"] for p in pend]))
                        for name in _BOLT_FIELDS]
+        if self._water:
+            writes.append(("water/resultant",
+                           np.stack([p.arrays["water/resultant"] for p in pend])))
         if self.record_contacts:
             for name in _CONTACT_FIELDS:
                 parts = [p.contacts[name] for p in pend if p.contacts]
@@ -832,6 +845,8 @@ class Result:
         yield from f["history"].values()
         if "bolts" in f:
             yield from (f["bolts"][name] for name in _BOLT_FIELDS)
+        if "water" in f:
+            yield f["water/resultant"]
         yield f["VTKHDF/Steps/Values"]
 
     def refresh(self) -> int:
@@ -930,6 +945,10 @@ class Result:
         for name in _BOLT_FIELDS:
             out[name] = self._read(f"bolts/{name}")
         return out
+
+    def water_resultants(self) -> np.ndarray | None:
+        """Resultant water force on each block `(K, n, 3)` N (None for a dry model)."""
+        return self._read("water/resultant") if "water" in self._file else None
 
     # --- blocks
     def block_index(self, name_or_index: str | int) -> int:

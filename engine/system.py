@@ -14,7 +14,7 @@ import numpy as np
 from engine import assembly as asm
 from engine.bolts import BoltSet, bolt_set
 from engine.geometry import Polyhedron
-from engine.model import AnalysisControls, Model
+from engine.model import AnalysisControls, Model, Water
 from engine.tolerances import DEFAULT_TOLERANCES
 
 
@@ -41,6 +41,7 @@ class BlockSystem:
       model's size)
     - `adaptive_search`: search each step within its own predicted limit
     - `bolts`: the rock bolts and cables (None: none), :mod:`engine.bolts`
+    - `water`: the water in the joints (None: dry), :mod:`engine.water`
     """
 
     model: Model
@@ -81,6 +82,7 @@ class BlockSystem:
     energy_round_off: float
     adaptive_search: bool = True
     bolts: BoltSet | None = None
+    water: Water | None = None
 
     @property
     def controls(self) -> AnalysisControls:
@@ -191,4 +193,5 @@ def build_system(model: Model, adaptive_search: bool = True) -> BlockSystem:
         * float(np.linalg.norm(model.body_acceleration)) * scale,
         adaptive_search=adaptive_search,
         bolts=bolt_set(model.bolts) if model.bolts else None,
+        water=model.water,
     )

@@ -40,6 +40,7 @@ from engine.model import (
     SeismicCoefficientControls,
     SeismicLoad,
     StrengthReductionControls,
+    Water,
 )
 from engine.tolerances import DEFAULT_TOLERANCES
 from schemas.errors import Problems, SceneError, fmt_num, fmt_point
@@ -533,6 +534,20 @@ def _bolts(scene: Scene, find: _Locator, p: Problems) -> list[Bolt]:
     return out
 
 
+def _water(scene: Scene, jmat_names: list[str]) -> Water | None:
+    """The engine's water of the scene's `water` (None: dry)."""
+    w = scene.water
+    if w is None:
+        return None
+    ps = w.phreatic_surface
+    return Water(
+        unit_weight=w.unit_weight,
+        surface_point=None if ps is None else np.asarray(ps.point, float),
+        surface_normal=None if ps is None else dip_normal(ps.dip, ps.dip_direction),
+        joint_pressure={jmat_names.index(jp.joint_material): jp.pressure
+                        for jp in w.joint_pressures})
+
+
 # --------------------------------------------------------------------------- build
 
 
@@ -702,6 +717,7 @@ def build_model(scene: Scene | str | Path | dict[str, Any]) -> BuildResult:
         point_loads=loads,
         fixed_points=fixed_points,
         bolts=bolts,
+        water=_water(scene, jmat_names),
         controls=controls,
     )
     return BuildResult(

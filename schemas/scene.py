@@ -384,6 +384,39 @@ class SeismicSpec(_Model):
                                                             "-5 to 5")
 
 
+class PhreaticSurfaceSpec(_Model):
+    """The water table as a plane: below it the joints hold water at hydrostatic pressure
+    γw·(depth below the plane, measured vertically)."""
+
+    point: Vec3 = Field(description="m, a point on the water table")
+    dip: _between(0, 90, "degrees", hi_open=True) = Field(
+        0.0, description="degrees, 0 (horizontal) to less than 90")
+    dip_direction: DipDirection = Field(0.0, description="degrees clockwise from North")
+
+
+class JointPressureSpec(_Model):
+    """A uniform water pressure in the joints of one joint material (a joint set or a named
+    joint given its own joint material), added to the phreatic surface's."""
+
+    joint_material: Name
+    pressure: NonNegative = Field(description="Pa")
+
+
+class WaterSpec(_Model):
+    """Water in the joints: pressure normal to the faces where blocks touch (uplift on
+    sliding planes, thrust in tension cracks), following the blocks as they move."""
+
+    unit_weight: Positive = Field(9810.0, description="N/m³, unit weight of water")
+    phreatic_surface: PhreaticSurfaceSpec | None = None
+    joint_pressures: list[JointPressureSpec] = Field(default_factory=list)
+
+    @model_validator(mode="after")
+    def _something(self) -> WaterSpec:
+        if self.phreatic_surface is None and not self.joint_pressures:
+            raise ValueError("give 'phreatic_surface' and/or 'joint_pressures'")
+        return self
+
+
 # --------------------------------------------------------------------------- analysis
 
 
@@ -578,6 +611,7 @@ class Scene(_Model):
     gravity: Vec3 = Field(default_factory=lambda: [0.0, 0.0, -9.81], description="m/s²")
     seismic: SeismicSpec | None = Field(
         None, description="pseudo-static seismic coefficients (none: no seismic load)")
+    water: WaterSpec | None = Field(None, description="water in the joints (none: dry)")
     bolts: list[BoltSpec] = Field(default_factory=list, description="rock bolts and cables")
     bolt_patterns: list[BoltPatternSpec] = Field(
         default_factory=list, description="grids of identical bolts on a face")
@@ -767,6 +801,9 @@ def scene_problems(scene: Scene) -> list[dict[str, str]]:
         for k, name in enumerate(fos.joint_materials):
             joint_material(f"analysis.factor_of_safety.joint_materials[{k}]", name)
 
+    if scene.water is not None:
+        for k, jp in enumerate(scene.water.joint_pressures):
+            joint_material(f"water.joint_pressures[{k}].joint_material", jp.joint_material)
     if scene.analysis.type == "critical_seismic_coefficient" and scene.seismic is None:
         p.add("seismic", "the critical_seismic_coefficient analysis needs 'seismic' with the "
               "azimuth the horizontal force points to (and kv, if any)")
