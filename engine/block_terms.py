@@ -1,5 +1,6 @@
 """Shi's block terms of a step (THEORY.md): inertia of the constant-acceleration scheme,
-elasticity, initial stress, gravity, point loads, fixed points, rock bolts and water, on the
+elasticity, initial stress, gravity and ground motion, point loads, fixed points, rock bolts
+and water, on the
 blocks' own unknowns; and the energy the implicit block springs dissipate in a step."""
 
 from __future__ import annotations
@@ -30,6 +31,9 @@ def block_terms(system: BlockSystem, state: State, dt: float
     fb = (mass @ state.velocity[:, :, None])[:, :, 0]
     fb *= 2.0 / dt
     fb[:, :3] += (system.density * vol)[:, None] * system.gravity[None]
+    gm = system.model.ground_motion
+    if gm is not None:  # the ground's frame: inertial body force −m a(t), its step mean
+        fb[:, :3] -= (system.density * vol)[:, None] * gm.mean(state.time, state.time + dt)
     if system.elastic:
         kb[:, 6:, 6:] += vol[:, None, None] * system.emat
         fb[:, 6:] -= vol[:, None] * state.stress

@@ -76,13 +76,17 @@ def point_displacements(system: BlockSystem, d: np.ndarray) -> np.ndarray:
     return trans + rot + strain
 
 
-def _work(system: BlockSystem, state: State, res: StepResult) -> dict[str, float]:
+def _work(system: BlockSystem, state: State, res: StepResult, dt: float) -> dict[str, float]:
     """The energies after the step: works of gravity and loads, and the dissipations."""
     d = res.d
     vol, _ = mass_properties(system, state)
     weight = (system.density * vol)[:, None] * system.gravity[None]
     e = dict(state.energies)
     e["gravity_work"] += float(np.sum(weight * d[:, :3]))
+    gm = system.model.ground_motion
+    if gm is not None:
+        inertial = -(system.density * vol)[:, None] * gm.mean(state.time, state.time + dt)
+        e["external_work"] += float(np.sum(inertial[~system.fixed] * d[~system.fixed, :3]))
     for b, p0, f in system.loads:
         t = asm.displacement_matrices(map_point(system, state, b, p0)[None],
                                       state.centroid[b][None])[0]
@@ -181,7 +185,7 @@ def advance(system: BlockSystem, state: State, res: StepResult, dt: float) -> St
         centroid=centroid, affine=affine, rotation=rotation, velocity=v1, stress=stress,
         time=state.time + dt, step=state.step + 1, dt=state.dt, last_dt=state.last_dt,
         memory=_memory(system, res), last_d=d, deepest=deepest,
-        energies=_work(system, state, res), contact_energy=spring_energy(system, res),
+        energies=_work(system, state, res, dt), contact_energy=spring_energy(system, res),
         diagnostics=diagnostics)
     if system.bolts is not None:
         _advance_bolts(system, state, after, d)

@@ -32,6 +32,7 @@ from engine.model import (
     Block,
     Bolt,
     FixedPoint,
+    GroundMotion,
     JointMaterial,
     JointPlane,
     Material,
@@ -718,6 +719,9 @@ def build_model(scene: Scene | str | Path | dict[str, Any]) -> BuildResult:
         fixed_points=fixed_points,
         bolts=bolts,
         water=_water(scene, jmat_names),
+        ground_motion=None if scene.ground_motion is None else GroundMotion(
+            np.asarray(scene.ground_motion.time, float),
+            scene.ground_motion.scale * np.asarray(scene.ground_motion.acceleration, float)),
         controls=controls,
     )
     return BuildResult(

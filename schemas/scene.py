@@ -417,6 +417,50 @@ class WaterSpec(_Model):
         return self
 
 
+class GroundMotionSpec(_Model):
+    """An acceleration time history of the ground (the fixed blocks), three components in
+    m/s²: inline (`time` and `acceleration`) or as `csv` text (rows `t, ax, ay, az`, an
+    optional header line). Linear between samples (repeat a time for a jump), zero outside
+    them, times `scale`. Applied as the inertial body force −m·a(t) on every block that
+    moves: displacements are relative to the ground."""
+
+    time: list[float] | None = Field(None, description="s, non-decreasing")
+    acceleration: list[Vec3] | None = Field(None, description="m/s², one (ax, ay, az) per time")
+    csv: str | None = Field(None, description="CSV text: t, ax, ay, az per row (s, m/s²)")
+    scale: float = Field(1.0, description="factor on the accelerations")
+
+    @model_validator(mode="after")
+    def _history(self) -> GroundMotionSpec:
+        if self.csv is not None:
+            if self.time is not None or self.acceleration is not None:
+                raise ValueError("give 'csv' or 'time' and 'acceleration', not both")
+            rows = []
+            for n, line in enumerate(self.csv.strip().splitlines(), 1):
+                cells = [c.strip() for c in line.replace(";", ",").split(",") if c.strip()]
+                try:
+                    rows.append([float(c) for c in cells])
+                except ValueError:
+                    if n == 1:
+                        continue  # a header
+                    raise ValueError(f"csv line {n}: not numbers: {line!r}") from None
+                if len(cells) != 4:
+                    raise ValueError(f"csv line {n}: expected 4 values (t, ax, ay, az), "
+                                     f"got {len(cells)}")
+            self.time = [r[0] for r in rows]
+            self.acceleration = [r[1:] for r in rows]
+            self.csv = None
+        if self.time is None or self.acceleration is None:
+            raise ValueError("give 'time' and 'acceleration' (or 'csv')")
+        if len(self.time) != len(self.acceleration) or len(self.time) < 2:
+            raise ValueError(f"'time' and 'acceleration' need the same length, at least 2 "
+                             f"(got {len(self.time)} and {len(self.acceleration)})")
+        if any(b < a for a, b in zip(self.time, self.time[1:], strict=False)):
+            raise ValueError("'time' must not decrease")
+        if not all(math.isfinite(x) for x in self.time):
+            raise ValueError("'time' must be finite")
+        return self
+
+
 # --------------------------------------------------------------------------- analysis
 
 
@@ -612,6 +656,8 @@ class Scene(_Model):
     seismic: SeismicSpec | None = Field(
         None, description="pseudo-static seismic coefficients (none: no seismic load)")
     water: WaterSpec | None = Field(None, description="water in the joints (none: dry)")
+    ground_motion: GroundMotionSpec | None = Field(
+        None, description="acceleration time history of the ground (none: none)")
     bolts: list[BoltSpec] = Field(default_factory=list, description="rock bolts and cables")
     bolt_patterns: list[BoltPatternSpec] = Field(
         default_factory=list, description="grids of identical bolts on a face")
