@@ -63,6 +63,8 @@ class Limits:
     max_joint_planes = 2_000
     #: time steps: duration / time_step
     max_steps = 10_000_000
+    #: rock bolts, listed and from patterns
+    max_bolts = 10_000
 
 
 # --------------------------------------------------------------------------- field types
@@ -869,6 +871,10 @@ def scene_problems(scene: Scene) -> list[dict[str, str]]:
         elif (n := estimate_cut_blocks(scene)) > Limits.max_blocks:
             p.add("joints", f"the joints would cut the domain into about {fmt_count(n)} "
                   f"blocks; the limit is {Limits.max_blocks:,} (increase the spacings)")
+    nb = len(scene.bolts) + sum(bp.rows * bp.columns for bp in scene.bolt_patterns)
+    if nb > Limits.max_bolts:
+        p.add("bolt_patterns" if scene.bolt_patterns else "bolts",
+              f"{nb:,} bolts in all; the limit is {Limits.max_bolts:,}")
     a = scene.analysis
     steps = a.duration / a.time_step
     if steps > Limits.max_steps:

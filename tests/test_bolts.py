@@ -183,3 +183,32 @@ def test_bolt_pattern_grid() -> None:
     p = Problems()
     assert pattern_bolts(bad, "bolt_patterns[0]", p) == []
     assert p.items[0]["loc"] == "bolt_patterns[0].trend"
+
+
+def test_bolt_count_is_limited_before_any_work() -> None:
+    scene = _scene()
+    scene["bolt_patterns"] = [{"origin": [0.933013, 0.5, 0.616025],
+                               "face_normal": NORMAL.tolist(), "row_direction": [0, 1, 0],
+                               "spacing": 0.001, "rows": 200, "columns": 100, "length": 3,
+                               "trend": 270, "plunge": 60}]
+    with pytest.raises(SceneError) as err:
+        load_scene(scene)
+    assert [p["loc"] for p in err.value.problems] == ["bolt_patterns"]
+
+
+def test_bolt_pattern_in_a_scene() -> None:
+    """Two pattern bolts on the cube's top face, normal to the slope, anchored in the
+    ground 5 m deep."""
+    scene = _scene()
+    scene["bolts"] = []
+    scene["bolt_patterns"] = [{"origin": [0.933013, 0.25, 0.616025],
+                               "face_normal": NORMAL.tolist(), "row_direction": [0, 1, 0],
+                               "spacing": 0.5, "columns": 2, "length": 5.0, "trend": 270,
+                               "plunge": 60, "pretension": 7000.0, "name_prefix": "P"}]
+    built = build_model(scene)
+    bolts = built.model.bolts
+    assert [b.name for b in bolts] == ["P1", "P2"]
+    assert all(b.block == built.block_index("cube") and b.anchor_block == -1 for b in bolts)
+    assert bolts[1].head - bolts[0].head == pytest.approx([0.0, 0.5, 0.0], abs=1e-9)
+    assert (bolts[0].anchor - bolts[0].head) == pytest.approx(-5.0 * NORMAL, abs=1e-9)
+    assert bolts[0].pretension == 7000.0
