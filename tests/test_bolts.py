@@ -212,3 +212,22 @@ def test_bolt_pattern_in_a_scene() -> None:
     assert bolts[1].head - bolts[0].head == pytest.approx([0.0, 0.5, 0.0], abs=1e-9)
     assert (bolts[0].anchor - bolts[0].head) == pytest.approx(-5.0 * NORMAL, abs=1e-9)
     assert bolts[0].pretension == 7000.0
+
+
+def test_resumed_run_with_a_yielding_bolt_is_bit_for_bit(tmp_path: Path) -> None:
+    """A checkpoint carries the bolts' plastic elongation, shear force and state."""
+    from engine.simulation import Simulation
+
+    model = build_model(_tie_back(4000.0, 4000.0)).model
+    full, half = Simulation(model), Simulation(model)
+    for _ in range(60):
+        full.step()
+        half.step()
+    assert half.state.bolt_status[0] == YIELDED and half.state.bolt_plastic[0] > 0
+    half.checkpoint(tmp_path / "state.npz")
+    resumed = Simulation.resume(model, tmp_path / "state.npz")
+    for _ in range(100):
+        assert np.array_equal(full.step().d, resumed.step().d)
+    for name in ("centroid", "bolt_plastic", "bolt_shear", "bolt_status"):
+        assert np.array_equal(getattr(full.state, name), getattr(resumed.state, name)), name
+    assert full.state.bolt_status[0] == BROKEN
