@@ -160,3 +160,46 @@ def test_water_scene_errors_name_the_field() -> None:
         load_scene(scene)
     assert [p["loc"] for p in err.value.problems] == [
         "water.joint_pressures[0].joint_material"]
+
+
+#: VALIDATION.md 2.2: the wedge's weight, normal reactions (N) and face areas (m²)
+WEDGE_W, WEDGE_NA, WEDGE_NB = 7_277_374.0, 4_828_308.0, 4_341_508.0
+WEDGE_AREAS = (97.5733, 91.2474)
+N1 = np.array([0.719846, -0.262003, 0.642788])
+N2 = np.array([-0.709406, -0.409576, 0.573576])
+PSI_I = np.radians(28.750)
+
+
+def _wedge_fs(u: float) -> float:
+    """FS of the wedge with a uniform water pressure `u` (Pa) on both planes: the water
+    forces are normal to the planes, so N_A − U_A and N_B − U_B carry the friction."""
+    ua, ub = u * WEDGE_AREAS[0], u * WEDGE_AREAS[1]
+    return ((WEDGE_NA + WEDGE_NB - ua - ub) * np.tan(np.radians(40.0))
+            / (WEDGE_W * np.sin(PSI_I)))
+
+
+def test_wedge_water_forces_are_normal_to_both_planes() -> None:
+    """examples/wedge_water.json at rest: u A1 n1 + u A2 n2 on the wedge (u = γw H / 6)."""
+    scene = json.loads((EXAMPLES / "wedge_water.json").read_text())
+    u = scene["water"]["joint_pressures"][0]["pressure"]
+    assert u == pytest.approx(GW * 10 / 6)
+    assert _wedge_fs(0.0) == pytest.approx(2.19819, abs=2e-4)
+    assert _wedge_fs(u) == pytest.approx(1.4581, abs=2e-4)
+    scene["analysis"].update(type="simulation", duration=0.005)
+    built = build_model(scene)
+    log = FrameLog()
+    assert run(built.model, recorder=log).status == STATUS_COMPLETED
+    expected = u * (WEDGE_AREAS[0] * N1 + WEDGE_AREAS[1] * N2)
+    got = log.frames[0].water_force[built.block_index("wedge")]
+    assert got == pytest.approx(expected, rel=1e-5, abs=1e-5 * np.linalg.norm(expected))
+
+
+@pytest.mark.slow
+@pytest.mark.ci
+def test_wedge_with_water_factor_of_safety(capsys: pytest.CaptureFixture[str]) -> None:
+    """`polydda fos examples/wedge_water.json`: FS 1.4581 (dry 2.1982) within 2 %."""
+    assert main(["fos", str(EXAMPLES / "wedge_water.json"), "--json", "--quiet"]) == 0
+    doc = json.loads(capsys.readouterr().out)
+    scene = json.loads((EXAMPLES / "wedge_water.json").read_text())
+    expected = _wedge_fs(scene["water"]["joint_pressures"][0]["pressure"])
+    assert doc["factor_of_safety"] == pytest.approx(expected, rel=0.02)
