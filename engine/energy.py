@@ -61,8 +61,9 @@ def check_step(system: BlockSystem, before: State, after: State) -> None:
     e1 = {**stored_energies(system, after), **after.energies}
     gain = float(energy_created(e1) - energy_created(e0))
     moved = {k: abs(e1[k] - e0[k]) for k in e1 if k not in ("kinetic", "elastic", "contact")}
-    in_play = e0["kinetic"] + e0["elastic"] + e0["contact"] + sum(moved.values())
-    scale = max(e1["kinetic"] + e1["elastic"] + e1["contact"],
+    # stored spring energy is >= 0 but for pretensioned bolts (T0 x may be negative)
+    in_play = e0["kinetic"] + e0["elastic"] + abs(e0["contact"]) + sum(moved.values())
+    scale = max(e1["kinetic"] + e1["elastic"] + abs(e1["contact"]),
                 abs(e1["gravity_work"]) + abs(e1["external_work"]))
     d = after.diagnostics
     d.energy_scale = max(d.energy_scale, scale)

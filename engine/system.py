@@ -38,7 +38,7 @@ class BlockSystem:
     - `loads`: (block, point m, force N) per point load; `fixed_points`: (block, point m)
     - `energy_floor` J: spring energies below it are round-off; `energy_round_off` J: the
       energy balance's round-off (1e-10 of the free blocks' potential energy over the
-      model's size)
+      model's size, and of the bolts' pretension over it)
     - `adaptive_search`: search each step within its own predicted limit
     - `bolts`: the rock bolts and cables (None: none), :mod:`engine.bolts`
     - `water`: the water in the joints (None: dry), :mod:`engine.water`
@@ -190,7 +190,8 @@ def build_system(model: Model, adaptive_search: bool = True) -> BlockSystem:
             * float(np.linalg.norm(model.body_acceleration))
             * scale, 0.5 * kn * max_step**2),
         energy_round_off=1e-10 * float(np.sum((density * volume0)[~fixed]))
-        * float(np.linalg.norm(model.body_acceleration)) * scale,
+        * float(np.linalg.norm(model.body_acceleration)) * scale
+        + 1e-10 * float(sum(b.pretension for b in model.bolts)) * scale,
         adaptive_search=adaptive_search,
         bolts=bolt_set(model.bolts) if model.bolts else None,
         water=model.water,

@@ -231,3 +231,32 @@ def test_resumed_run_with_a_yielding_bolt_is_bit_for_bit(tmp_path: Path) -> None
     for name in ("centroid", "bolt_plastic", "bolt_shear", "bolt_status"):
         assert np.array_equal(getattr(full.state, name), getattr(resumed.state, name)), name
     assert full.state.bolt_status[0] == BROKEN
+
+
+def test_bolt_between_two_free_blocks_couples_them() -> None:
+    """Two free cubes without gravity joined by a pretensioned bolt (T = 1 kN, k = 1 MN/m)
+    between their facing faces: internal forces (momentum stays zero) and a two-body
+    oscillator about elongation −T/k at ω = √(2k/m): the bolt shortens to −2T/k at t = π/ω
+    (a bolt seen by each block alone, without the coupling terms, would give √(k/m))."""
+    from engine.model import AnalysisControls, Block, Bolt, Model
+    from engine.shapes import box
+
+    k, t0, m = 1e6, 1000.0, 2600.0
+    model = Model(blocks=[Block(box([0, 0, 0], [1, 1, 1]), "a"),
+                          Block(box([3, 0, 0], [4, 1, 1]), "b")],
+                  gravity=np.zeros(3),
+                  bolts=[Bolt(block=0, head=np.array([1.0, 0.5, 0.5]),
+                              anchor=np.array([3.0, 0.5, 0.5]), anchor_block=1,
+                              axial_stiffness=k, pretension=t0)],
+                  controls=AnalysisControls(duration=0.2, time_step=2e-4, record_interval=1))
+    log = FrameLog()
+    assert run(model, recorder=log).status == STATUS_COMPLETED
+    t = np.array([f.time for f in log.frames])
+    c = np.array([f.centroids for f in log.frames])
+    v = np.array([f.velocity[:, :3] for f in log.frames])
+    assert np.abs(v.sum(axis=1)).max() < 1e-9 * np.abs(v).max()
+    elong = (c[:, 1, 0] - c[:, 0, 0]) - 3.0
+    omega = np.sqrt(2 * k / m)
+    j = int(np.argmin(elong))
+    assert t[j] == pytest.approx(np.pi / omega, rel=0.02)
+    assert elong[j] == pytest.approx(-2 * t0 / k, rel=0.05)
