@@ -177,7 +177,7 @@ def update(bs: BoltSet, step: BoltStep, d: np.ndarray, c0: np.ndarray,
                                   (n - np.clip(n, -bs.capacity, bs.capacity))
                                   / np.where(bs.axial_stiffness > 0, bs.axial_stiffness, 1.0),
                                   0.0)
-    yielded = (np.abs(n) > bs.capacity) | (step.ka == 0) & (bs.axial_stiffness > 0)
+    yielded = (np.abs(n) > bs.capacity) | ((step.ka == 0) & (bs.axial_stiffness > 0))
     tangential = ds - np.einsum("bi,bi->b", ds, step.axis)[:, None] * step.axis
     s1 = shear + step.ks[:, None] * tangential
     s1 -= np.einsum("bi,bi->b", s1, axis)[:, None] * axis

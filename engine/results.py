@@ -480,6 +480,14 @@ class ResultWriter:
             for name, (tail, dtype) in _CONTACT_FIELDS.items():
                 self._ds(g, name, tail, dtype, contact=True)
 
+        self._begin_loads(f, model)
+        self._begin_vtkhdf(f, n, nv)
+        f.flush()
+        f.swmr_mode = True
+
+    def _begin_loads(self, f: h5py.File, model: Model) -> None:
+        """The `/bolts` and `/water` groups of a model that has bolts or water."""
+        n = len(model.blocks)
         if model.bolts:
             self._n_bolts = nb = len(model.bolts)
             g = f.create_group("bolts")
@@ -497,10 +505,6 @@ class ResultWriter:
         if model.water is not None:
             self._water = True
             self._ds(f.create_group("water"), "resultant", (n, 3), np.float64)
-
-        self._begin_vtkhdf(f, n, nv)
-        f.flush()
-        f.swmr_mode = True
 
     def _begin_vtkhdf(self, f: h5py.File, n: int, nv: int) -> None:
         """Static part of the VTKHDF temporal PolyData group and its per-step datasets."""
