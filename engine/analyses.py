@@ -16,11 +16,18 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from engine.frame import Frame
-from engine.model import JointMaterial, Model, StrengthReductionControls
+from engine.model import (
+    JointMaterial,
+    Model,
+    SeismicCoefficientControls,
+    SeismicLoad,
+    StrengthReductionControls,
+)
 from engine.simulation import STATUS_CANCELLED, STATUS_FAILED, run
 
-__all__ = ["FactorOfSafetyResult", "StrengthReductionControls", "TrialRun", "factor_of_safety",
-           "reduced_model", "trial"]
+__all__ = ["FactorOfSafetyResult", "SeismicCoefficientControls", "SeismicCoefficientResult",
+           "StrengthReductionControls", "TrialRun", "critical_seismic_coefficient",
+           "factor_of_safety", "reduced_model", "seismic_model", "trial"]
 
 
 @dataclass
@@ -104,6 +111,12 @@ class _SpeedProbe:
 def trial(model: Model, factor: float, controls: StrengthReductionControls) -> TrialRun:
     """Run the model with strengths reduced by `factor`; failed = sustained acceleration."""
     m = reduced_model(model, factor, controls.observation_time, controls.joint_materials)
+    return _observe(m, factor, controls)
+
+
+def _observe(m: Model, factor: float,
+             controls: StrengthReductionControls | SeismicCoefficientControls) -> TrialRun:
+    """Run the trial model `m`; failed = sustained acceleration of the watched blocks."""
     radius = np.array([
         np.linalg.norm(b.polyhedron.vertices[b.polyhedron.surface_vertex_ids]
                        - b.polyhedron.centroid, axis=1).max() for b in m.blocks
@@ -172,3 +185,78 @@ def _result(model: Model, factor: float, runs: list[TrialRun], status: str,
     crit = [float(np.degrees(np.arctan(np.tan(j.friction_angle_rad) / factor)))
             for k, j in enumerate(model.joint_materials) if which is None or k in which]
     return FactorOfSafetyResult(float(factor), crit, runs, status, message)
+
+
+@dataclass
+class SeismicCoefficientResult:
+    """Critical (yield) seismic coefficient kh (fraction of g) and its trials (`factor` is
+    the kh tried)."""
+
+    critical_coefficient: float
+    azimuth_deg: float
+    kv: float
+    runs: list[TrialRun] = field(default_factory=list)
+    status: str = "completed"
+    message: str = ""
+
+    def as_dict(self) -> dict:
+        return {
+            "critical_seismic_coefficient": self.critical_coefficient,
+            "azimuth": self.azimuth_deg,
+            "kv": self.kv,
+            "runs": [{"kh": r.factor, **{k: v for k, v in dataclasses.asdict(r).items()
+                                         if k != "factor"}} for r in self.runs],
+            "status": self.status,
+            "message": self.message,
+        }
+
+
+def seismic_model(model: Model, kh: float, duration: float) -> Model:
+    """A copy of `model` with horizontal seismic coefficient `kh` (its azimuth and kv kept)
+    and the given duration."""
+    seismic = dataclasses.replace(model.seismic or SeismicLoad(), kh=float(kh))
+    controls = dataclasses.replace(model.controls, duration=duration, record_contacts=False,
+                                   record_interval=1)
+    return dataclasses.replace(model, seismic=seismic, controls=controls)
+
+
+def critical_seismic_coefficient(
+    model: Model,
+    controls: SeismicCoefficientControls | None = None,
+    progress: Callable[[TrialRun], None] | None = None,
+) -> SeismicCoefficientResult:
+    """The smallest horizontal seismic coefficient kh at which the watched blocks start to
+    accelerate, by bisection on kh (the model's seismic azimuth and kv, full strengths)."""
+    c = controls or SeismicCoefficientControls()
+    base = model.seismic or SeismicLoad()
+    runs: list[TrialRun] = []
+
+    def check(kh: float) -> bool:
+        r = _observe(seismic_model(model, kh, c.observation_time), kh, c)
+        runs.append(r)
+        if progress is not None:
+            progress(r)
+        return r.failed
+
+    def result(kh: float, status: str = "completed", message: str = ""
+               ) -> SeismicCoefficientResult:
+        return SeismicCoefficientResult(float(kh), float(np.degrees(base.azimuth_rad)),
+                                        float(base.kv), runs, status, message)
+
+    if check(0.0):
+        return result(0.0, "completed", "the model fails without seismic load: the critical "
+                                        "seismic coefficient is 0")
+    lo, hi = 0.0, min(0.1, c.max_coefficient)
+    while not check(hi):
+        lo = hi
+        if hi >= c.max_coefficient:
+            return result(hi, "completed", f"no failure up to kh = {c.max_coefficient:g}; "
+                                           "the critical coefficient is at least that")
+        hi = min(2.0 * hi, c.max_coefficient)
+    while hi - lo > c.tolerance * hi and len(runs) < c.max_runs:
+        mid = 0.5 * (lo + hi)
+        if check(mid):
+            hi = mid
+        else:
+            lo = mid
+    return result(0.5 * (lo + hi))

@@ -16,7 +16,7 @@ import numpy as np
 
 from engine.block_terms import kinetic_energy
 from engine.frame import energy_created
-from engine.motion import map_point, mass_matrices, mass_properties
+from engine.motion import bolt_energy, map_point, mass_matrices, mass_properties
 from engine.state import State
 from engine.status import StepFailure
 from engine.system import BlockSystem
@@ -40,7 +40,7 @@ def fixed_point_energy(system: BlockSystem, state: State) -> float:
 
 def stored_energies(system: BlockSystem, state: State) -> dict[str, float]:
     """Kinetic, elastic-strain and spring energies (J) of the state (contact springs as they
-    ended the last step, `state.contact_energy`, with the fixed points')."""
+    ended the last step, `state.contact_energy`, with the fixed points' and the bolts')."""
     vol, _ = mass_properties(system, state)
     elastic = 0.0
     if system.elastic:
@@ -48,7 +48,8 @@ def stored_energies(system: BlockSystem, state: State) -> dict[str, float]:
         elastic = 0.5 * float(np.sum(vol * np.einsum("ij,ij->i", state.stress, comp)))
     return {"kinetic": kinetic_energy(state.velocity, mass_matrices(system, state)),
             "elastic": elastic,
-            "contact": state.contact_energy + fixed_point_energy(system, state)}
+            "contact": state.contact_energy + fixed_point_energy(system, state)
+            + bolt_energy(system, state)}
 
 
 def check_step(system: BlockSystem, before: State, after: State) -> None:
@@ -60,8 +61,9 @@ def check_step(system: BlockSystem, before: State, after: State) -> None:
     e1 = {**stored_energies(system, after), **after.energies}
     gain = float(energy_created(e1) - energy_created(e0))
     moved = {k: abs(e1[k] - e0[k]) for k in e1 if k not in ("kinetic", "elastic", "contact")}
-    in_play = e0["kinetic"] + e0["elastic"] + e0["contact"] + sum(moved.values())
-    scale = max(e1["kinetic"] + e1["elastic"] + e1["contact"],
+    # stored spring energy is >= 0 but for pretensioned bolts (T0 x may be negative)
+    in_play = e0["kinetic"] + e0["elastic"] + abs(e0["contact"]) + sum(moved.values())
+    scale = max(e1["kinetic"] + e1["elastic"] + abs(e1["contact"]),
                 abs(e1["gravity_work"]) + abs(e1["external_work"]))
     d = after.diagnostics
     d.energy_scale = max(d.energy_scale, scale)

@@ -47,6 +47,9 @@ class Frame:
       `damping_dissipation` by the contact dashpots)
     - `contacts` with `normal_force (c,)` N (compression positive) and
       `shear_force (c, 3)` N on block i
+    - rock bolts (None without): `bolt_axial_force (b,)` N (tension positive),
+      `bolt_shear_force (b,)` N, `bolt_status (b,)` (0 elastic, 1 yielded, 2 broken)
+    - `water_force (n, 3)` N: resultant water force on each block (None: a dry model)
     """
 
     step: int
@@ -63,6 +66,10 @@ class Frame:
     contacts: ContactSet | None = None
     normal_force: np.ndarray | None = None
     shear_force: np.ndarray | None = None
+    bolt_axial_force: np.ndarray | None = None
+    bolt_shear_force: np.ndarray | None = None
+    bolt_status: np.ndarray | None = None
+    water_force: np.ndarray | None = None
 
 
 class Recorder(Protocol):

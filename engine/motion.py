@@ -9,6 +9,7 @@ import dataclasses
 import numpy as np
 
 from engine import assembly as asm
+from engine import bolts
 from engine._motion_kernels import block_vertices, move_blocks
 from engine.contacts import LOCKED, OPEN
 from engine.geometry import Polyhedron
@@ -75,17 +76,28 @@ def point_displacements(system: BlockSystem, d: np.ndarray) -> np.ndarray:
     return trans + rot + strain
 
 
-def _work(system: BlockSystem, state: State, res: StepResult) -> dict[str, float]:
+def _work(system: BlockSystem, state: State, res: StepResult, dt: float) -> dict[str, float]:
     """The energies after the step: works of gravity and loads, and the dissipations."""
     d = res.d
     vol, _ = mass_properties(system, state)
     weight = (system.density * vol)[:, None] * system.gravity[None]
     e = dict(state.energies)
     e["gravity_work"] += float(np.sum(weight * d[:, :3]))
+    gm = system.model.ground_motion
+    if gm is not None:
+        inertial = -(system.density * vol)[:, None] * gm.mean(state.time, state.time + dt)
+        e["external_work"] += float(np.sum(inertial[~system.fixed] * d[~system.fixed, :3]))
     for b, p0, f in system.loads:
         t = asm.displacement_matrices(map_point(system, state, b, p0)[None],
                                       state.centroid[b][None])[0]
         e["external_work"] += float(f @ (t @ d[b]))
+    if system.water is not None:
+        from engine.block_terms import water_now
+
+        w = water_now(system, state)
+        if len(w.block):
+            t = asm.displacement_matrices(w.point, state.centroid[w.block])
+            e["external_work"] += float(np.einsum("qi,qij,qj->", w.force, t, d[w.block]))
     e["friction_dissipation"] += res.friction_work
     e["numerical_dissipation"] += res.numerical_dissipation
     return e
@@ -131,6 +143,27 @@ def _penetrations(system: BlockSystem, state: State, res: StepResult
     return deepest, dataclasses.replace(d, max_penetration=pen, max_penetration_ratio=ratio)
 
 
+def bolt_energy(system: BlockSystem, state: State) -> float:
+    """Energy (J) the rock bolts of the state hold (0 without bolts)."""
+    if system.bolts is None:
+        return 0.0
+    head, anchor = bolts.bolt_ends(system.bolts, system.c0, state.centroid, state.affine)
+    return bolts.stored_energy(system.bolts, head, anchor, state.bolt_plastic,
+                               state.bolt_shear, state.bolt_status)
+
+
+def _advance_bolts(system: BlockSystem, state: State, after: State, d: np.ndarray) -> None:
+    """The bolts' plastic elongation, shear force and state after the step `d`, and the
+    energy dissipated in them (implicit springs, yield, rupture) with the integrator's."""
+    from engine.block_terms import bolts_now
+
+    plastic, shear, status, dissipated = bolts.update(
+        system.bolts, bolts_now(system, state), d, system.c0, after.centroid, after.affine,
+        state.bolt_plastic, state.bolt_shear, state.bolt_status, bolt_energy(system, state))
+    after.bolt_plastic, after.bolt_shear, after.bolt_status = plastic, shear, status
+    after.energies["numerical_dissipation"] += dissipated
+
+
 def advance(system: BlockSystem, state: State, res: StepResult, dt: float) -> State:
     """The state after the converged step `res` of `dt` s: blocks moved with the exact
     rotation, velocities `2 d / Δt − v0` (times the dynamic ratio; the kinetic energy that
@@ -151,8 +184,10 @@ def advance(system: BlockSystem, state: State, res: StepResult, dt: float) -> St
         centroid=centroid, affine=affine, rotation=rotation, velocity=v1, stress=stress,
         time=state.time + dt, step=state.step + 1, dt=state.dt, last_dt=state.last_dt,
         memory=_memory(system, res), last_d=d, deepest=deepest,
-        energies=_work(system, state, res), contact_energy=spring_energy(system, res),
+        energies=_work(system, state, res, dt), contact_energy=spring_energy(system, res),
         diagnostics=diagnostics)
+    if system.bolts is not None:
+        _advance_bolts(system, state, after, d)
     ratio = system.controls.dynamic_ratio
     if ratio != 1.0:
         kinetic = 0.5 * float(np.einsum("ni,nij,nj->", v1, mass_matrices(system, after), v1))

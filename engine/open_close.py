@@ -25,7 +25,7 @@ from engine import assembly as asm
 from engine._assembly_kernels import relative_displacement
 from engine._open_close_kernels import contact_loads, step_results, update_modes
 from engine._open_close_kernels import initial_modes as _initial_modes
-from engine.block_terms import block_dissipation, block_terms, kinetic_energy
+from engine.block_terms import block_dissipation, block_terms, bolt_links, kinetic_energy
 from engine.contacts import LOCKED, OPEN, SLIDING, ContactSet
 from engine.solver import BlockJacobi, SolveError, make_solver
 from engine.state import State, StepResult
@@ -158,8 +158,11 @@ class _LinearSystem:
     solver, built again only when the closed or locked contacts change; the solution of the
     last cycle warm-starts the next."""
 
-    def __init__(self, system: BlockSystem, kb: np.ndarray, t: _Terms, dt: float) -> None:
+    def __init__(self, system: BlockSystem, kb: np.ndarray, t: _Terms, dt: float,
+                 links: tuple[np.ndarray, ...] | None = None) -> None:
         self.system, self.kb, self.t, self.dt = system, kb, t, dt
+        #: two-point springs between free blocks that are not contacts (rock bolts)
+        self.links = links
         self.plan: asm.SystemPlan | None = None
         self.solver = None
         self.key: tuple[bytes, bytes] | None = None
@@ -173,9 +176,20 @@ class _LinearSystem:
         if self.solver is not None and key == self.key:
             return False
         s, t = self.system, self.t
-        if self.plan is None:
-            self.plan = asm.plan_system(s.block_row, self.kb, t.bi, t.bj, t.ti, t.tj, t.normal)
-        k, kdiag = self.plan.matrix(s.kn * closed, s.ks * locked)
+        kn, ks = s.kn * closed, s.ks * locked
+        if self.links is None:
+            if self.plan is None:
+                self.plan = asm.plan_system(s.block_row, self.kb, t.bi, t.bj, t.ti, t.tj,
+                                            t.normal)
+        else:
+            bi, bj, ti, tj, axis, ka, ksb = self.links
+            if self.plan is None:
+                self.plan = asm.plan_system(
+                    s.block_row, self.kb, np.concatenate([t.bi, bi]),
+                    np.concatenate([t.bj, bj]), np.concatenate([t.ti, ti]),
+                    np.concatenate([t.tj, tj]), np.concatenate([t.normal, axis]))
+            kn, ks = np.concatenate([kn, ka]), np.concatenate([ks, ksb])
+        k, kdiag = self.plan.matrix(kn, ks)
         try:
             self.solver = make_solver(k, s.ndof, kdiag, self.jacobi, self.plan.coupled)
         except SolveError as exc:
@@ -355,7 +369,7 @@ def open_close_iteration(system: BlockSystem, state: State, contacts: ContactSet
     f_block = asm.scatter_vector(system.dof_map, np.arange(system.n), fb, system.n_unknowns)
     t = _terms(system, state, contacts, areas, start.shear)
     m = _start(system, start, t)
-    lin = _LinearSystem(system, kb, t, dt)
+    lin = _LinearSystem(system, kb, t, dt, bolt_links(system, state))
     max_changes = system.controls.max_open_close_iterations
     for it in range(1, FRICTION_ITERATIONS_PER_CHANGE * (max_changes + 1) + 1):
         was_sliding = m.mode == SLIDING

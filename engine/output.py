@@ -8,6 +8,7 @@ from typing import Any
 import numpy as np
 from scipy.spatial.transform import Rotation
 
+from engine.bolts import STATUS_NAMES, recorded_forces
 from engine.contacts import OPEN
 from engine.energy import stored_energies
 from engine.frame import Frame
@@ -38,6 +39,15 @@ def frame(system: BlockSystem, state: State, res: StepResult | None) -> Frame:
         velocity=state.velocity.copy(), stress=state.stress.copy(),
         energies=energies(system, state),
     )
+    if system.bolts is not None:
+        f.bolt_axial_force, f.bolt_shear_force = recorded_forces(
+            system.bolts, system.c0, state.centroid, state.affine, state.bolt_plastic,
+            state.bolt_shear, state.bolt_status)
+        f.bolt_status = state.bolt_status.copy()
+    if system.water is not None:
+        from engine.block_terms import water_now
+
+        f.water_force = water_now(system, state).resultant.copy()
     if res is not None and system.controls.record_contacts:
         f.contacts = res.contacts
         f.normal_force = res.normal_force
@@ -82,10 +92,23 @@ def summary(system: BlockSystem, state: State, status: str, message: str,
         "penalty": {"normal": system.kn, "shear": system.ks,
                     "derived": system.controls.penalty is None},
         "max_penetration": d.max_penetration, "warnings": warnings(system, state),
-        "blocks": blocks, "timings": dict(d.timings),
+        "blocks": blocks, **_bolt_summary(system, state), "timings": dict(d.timings),
         "relaxed_contacts": d.relaxed_contacts, "time_step_cuts": dict(d.cuts),
         "initial_overlap": {"largest": d.initial_overlap, "contacts": d.initial_overlaps},
         "energy": {"created": d.max_energy_created, "scale": d.energy_scale,
                    "created_ratio": d.max_energy_created / d.energy_scale
                    if d.energy_scale > 0 else 0.0},
     }
+
+
+def _bolt_summary(system: BlockSystem, state: State) -> dict[str, Any]:
+    """`{"bolts": [...]}` with each bolt's name, final axial and shear force (N) and state
+    (nothing without bolts)."""
+    if system.bolts is None:
+        return {}
+    axial, shear = recorded_forces(system.bolts, system.c0, state.centroid, state.affine,
+                                   state.bolt_plastic, state.bolt_shear, state.bolt_status)
+    return {"bolts": [{"name": b.name or f"bolt{k + 1}", "axial_force": float(axial[k]),
+                       "shear_force": float(shear[k]),
+                       "state": STATUS_NAMES[int(state.bolt_status[k])]}
+                      for k, b in enumerate(system.bolts.bolts)]}

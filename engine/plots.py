@@ -1,4 +1,5 @@
-"""PNG plots of a result file: block histories, energy balance, 3-D snapshots.
+"""PNG plots of a result file: block histories, energy balance, rock bolt forces, water
+forces, 3-D snapshots.
 
 Figures are built with the object API on the Agg canvas (no pyplot, no global state), so
 plotting is safe in servers and threads and never opens a window.
@@ -121,6 +122,58 @@ def plot_energy(result: Result | PathLike, path: PathLike) -> Path:
     return _save(fig, path)
 
 
+def plot_bolts(result: Result | PathLike, path: PathLike) -> Path:
+    """Axial and shear force of every rock bolt vs time, broken bolts marked."""
+    if not isinstance(result, Result):
+        with open_result(result) as r:
+            return plot_bolts(r, path)
+    b = result.bolts()
+    if b is None:
+        raise ValueError(f"{result.path} has no rock bolts")
+    t = result.times
+    fig = Figure(figsize=(8, 6), layout="constrained")
+    ax_n, ax_s = fig.subplots(2, 1, sharex=True)
+    for k, name in enumerate(b["names"]):
+        (line,) = ax_n.plot(t, b["axial_force"][:, k] / 1e3, label=name)
+        ax_s.plot(t, b["shear_force"][:, k] / 1e3, color=line.get_color(), label=name)
+        broke = np.flatnonzero(b["status"][:, k] == 2)
+        if len(broke):
+            ax_n.axvline(t[broke[0]], color=line.get_color(), ls=":", lw=1)
+            ax_n.annotate(f"{name} breaks", (t[broke[0]], 0.0), fontsize="small")
+    ax_n.set_ylabel("axial force (kN, tension +)")
+    ax_s.set_ylabel("shear force (kN)")
+    ax_s.set_xlabel("time (s)")
+    ax_n.set_title(_title(result, "Rock bolts"))
+    for ax in (ax_n, ax_s):
+        ax.grid(True, alpha=0.3)
+    if len(b["names"]) <= 12:
+        ax_n.legend(fontsize="small", loc="best")
+    return _save(fig, path)
+
+
+def plot_water(result: Result | PathLike, path: PathLike) -> Path:
+    """Magnitude of the resultant water force on each wetted block vs time."""
+    if not isinstance(result, Result):
+        with open_result(result) as r:
+            return plot_water(r, path)
+    w = result.water_resultants()
+    if w is None:
+        raise ValueError(f"{result.path} has no water")
+    t = result.times
+    mag = np.linalg.norm(w, axis=2)
+    fig = Figure(figsize=(8, 4), layout="constrained")
+    ax = fig.subplots()
+    for b in np.flatnonzero(np.nanmax(mag, axis=0, initial=0.0) > 0)[:MAX_HISTORY_BLOCKS]:
+        ax.plot(t, mag[:, b] / 1e3, label=result.block_names[b] or f"block {b}")
+    ax.set_ylabel("water force |U| (kN)")
+    ax.set_xlabel("time (s)")
+    ax.set_title(_title(result, "Resultant water force per block"))
+    ax.grid(True, alpha=0.3)
+    if ax.lines:
+        ax.legend(fontsize="small", loc="best")
+    return _save(fig, path)
+
+
 def plot_snapshot(result: Result | PathLike, step: int | None, path: PathLike) -> Path:
     """3-D view of all blocks at recorded step `step` (None or no steps: initial geometry),
     faces coloured by the mean displacement magnitude of their vertices."""
@@ -212,6 +265,10 @@ def plot_all(result: Result | PathLike, out_dir: PathLike | None = None, *,
     if r.n_steps == 0:
         return [plot_snapshot(r, None, out / "snapshot_initial.png")]
     paths = [plot_histories(r, out / "histories.png", blocks), plot_energy(r, out / "energy.png")]
+    if r.bolts() is not None:
+        paths.append(plot_bolts(r, out / "bolts.png"))
+    if r.water_resultants() is not None:
+        paths.append(plot_water(r, out / "water.png"))
     if not chosen:
         return paths + [plot_snapshot(r, None, out / "snapshot_initial.png"),
                         plot_snapshot(r, -1, out / "snapshot_final.png")]

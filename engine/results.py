@@ -24,6 +24,12 @@ n blocks, V surface vertices, F faces, C contacts in all):
   `step_offsets[k]:step_offsets[k+1]` of `block_i`, `block_j`, `kind`, `mode`,
   `point_i (C,3)`, `point_j`, `normal`, `tangent`, `gap (C,)`, `normal_force (C,)`,
   `shear_force (C,3)`
+- `/bolts` (only for a model with rock bolts, b of them): `names (b,)`, `block (b,)`,
+  `anchor_block (b,)` (-1: the ground), `head (b,3)`, `anchor (b,3)` m, `pretension (b,)`,
+  `capacity (b,)` N; per step `axial_force (K,b)` N (tension positive), `shear_force (K,b)` N,
+  `status (K,b)` (0 elastic, 1 yielded, 2 broken)
+- `/water` (only for a model with water in its joints): per step `resultant (K,n,3)` N, the
+  resultant water force on each block
 - `/VTKHDF`: VTKHDF 2.2 temporal PolyData for ParaView (block faces as polygons, points
   written per step, connectivity shared by all steps; point data `block_id`,
   `displacement`, `velocity`; cell data `block_id`, `face_tag`)
@@ -79,6 +85,12 @@ _CONTACT_COMPRESS_BLOCKS = 100
 _STR = h5py.string_dtype("utf-8")
 _HISTORY_SHAPES = {"centroid": (3,), "rotation": (3,), "affine": (3, 3),
                    "velocity": (12,), "stress": (6,)}
+#: per-step bolt datasets under /bolts: frame attribute and dtype
+_BOLT_FIELDS: dict[str, tuple[str, type]] = {
+    "axial_force": ("bolt_axial_force", np.float64),
+    "shear_force": ("bolt_shear_force", np.float64),
+    "status": ("bolt_status", np.int8),
+}
 _CONTACT_FIELDS: dict[str, tuple[tuple[int, ...], type]] = {
     "block_i": ((), np.int32), "block_j": ((), np.int32), "kind": ((), np.int8),
     "mode": ((), np.int8), "point_i": ((3,), np.float64), "point_j": ((3,), np.float64),
@@ -318,6 +330,8 @@ class ResultWriter:
         self._h: dict[str, h5py.Dataset] | None = None
         self._nf = 0
         self._n_blocks = 0
+        self._n_bolts = 0
+        self._water = False
         self._pending: list[_PendingStep] = []
         self._pending_bytes = 0
         self._last_flush = 0.0
@@ -466,9 +480,31 @@ class ResultWriter:
             for name, (tail, dtype) in _CONTACT_FIELDS.items():
                 self._ds(g, name, tail, dtype, contact=True)
 
+        self._begin_loads(f, model)
         self._begin_vtkhdf(f, n, nv)
         f.flush()
         f.swmr_mode = True
+
+    def _begin_loads(self, f: h5py.File, model: Model) -> None:
+        """The `/bolts` and `/water` groups of a model that has bolts or water."""
+        n = len(model.blocks)
+        if model.bolts:
+            self._n_bolts = nb = len(model.bolts)
+            g = f.create_group("bolts")
+            g.create_dataset("names", data=[b.name or f"bolt{k + 1}"
+                                            for k, b in enumerate(model.bolts)], dtype=_STR)
+            g["block"] = np.array([b.block for b in model.bolts], dtype=np.int64)
+            g["anchor_block"] = np.array([b.anchor_block for b in model.bolts], dtype=np.int64)
+            g["head"] = np.array([b.head for b in model.bolts], float).reshape(nb, 3)
+            g["anchor"] = np.array([b.anchor for b in model.bolts], float).reshape(nb, 3)
+            g["pretension"] = np.array([b.pretension for b in model.bolts], float)
+            g["capacity"] = np.array([b.capacity for b in model.bolts], float)
+            for name, (_, dtype) in _BOLT_FIELDS.items():
+                self._ds(g, name, (nb,), dtype)
+
+        if model.water is not None:
+            self._water = True
+            self._ds(f.create_group("water"), "resultant", (n, 3), np.float64)
 
     def _begin_vtkhdf(self, f: h5py.File, n: int, nv: int) -> None:
         """Static part of the VTKHDF temporal PolyData group and its per-step datasets."""
@@ -537,6 +573,13 @@ class ResultWriter:
             if arrays[name].shape != (n, *tail):
                 raise ValueError(f"frame.{name} has shape {arrays[name].shape}, "
                                  f"expected {(n, *tail)}")
+        for name, (attr, dtype) in _BOLT_FIELDS.items() if self._n_bolts else ():
+            value = getattr(frame, attr)
+            arrays[f"bolts/{name}"] = (np.full(self._n_bolts, np.nan) if value is None
+                                       else np.array(value, dtype=dtype))
+        if self._water:
+            arrays["water/resultant"] = (np.full((n, 3), np.nan) if frame.water_force is None
+                                         else np.array(frame.water_force, float))
         contacts: dict[str, np.ndarray] = {}
         cs = frame.contacts
         c = 0 if cs is None or not self.record_contacts else len(cs)
@@ -614,6 +657,12 @@ class ResultWriter:
         writes: list[tuple[str, np.ndarray]] = []
         hist = {name: np.stack([p.arrays[name] for p in pend]) for name in _HISTORY_SHAPES}
         writes += [(f"history/{name}", a) for name, a in hist.items()]
+        if self._n_bolts:
+            writes += [(f"bolts/{name}", np.stack([p.arrays[f"bolts/{name}"] for p in pend]))
+                       for name in _BOLT_FIELDS]
+        if self._water:
+            writes.append(("water/resultant",
+                           np.stack([p.arrays["water/resultant"] for p in pend])))
         if self.record_contacts:
             for name in _CONTACT_FIELDS:
                 parts = [p.contacts[name] for p in pend if p.contacts]
@@ -798,6 +847,10 @@ class Result:
                                             "max_penetration"))
         yield from f["steps/energies"].values()
         yield from f["history"].values()
+        if "bolts" in f:
+            yield from (f["bolts"][name] for name in _BOLT_FIELDS)
+        if "water" in f:
+            yield f["water/resultant"]
         yield f["VTKHDF/Steps/Values"]
 
     def refresh(self) -> int:
@@ -882,6 +935,24 @@ class Result:
     def energies(self) -> dict[str, np.ndarray]:
         """Energy and work terms `(K,)` J by name (NaN where the engine gave none)."""
         return {k: self._read(f"steps/energies/{k}") for k in self._file["steps/energies"]}
+
+    def bolts(self) -> dict[str, Any] | None:
+        """The rock bolts (None for a model without): `names`, `block`, `anchor_block`,
+        `head`, `anchor`, `pretension`, `capacity`, and per step `axial_force`,
+        `shear_force`, `status` `(K, b)` (see the module's layout)."""
+        if "bolts" not in self._file:
+            return None
+        g = self._file["bolts"]
+        out: dict[str, Any] = {"names": [_text(x) for x in g["names"][()]]}
+        for name in ("block", "anchor_block", "head", "anchor", "pretension", "capacity"):
+            out[name] = g[name][()]
+        for name in _BOLT_FIELDS:
+            out[name] = self._read(f"bolts/{name}")
+        return out
+
+    def water_resultants(self) -> np.ndarray | None:
+        """Resultant water force on each block `(K, n, 3)` N (None for a dry model)."""
+        return self._read("water/resultant") if "water" in self._file else None
 
     # --- blocks
     def block_index(self, name_or_index: str | int) -> int:

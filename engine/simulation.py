@@ -68,7 +68,12 @@ def _start_state(system: BlockSystem) -> State:
     for b, blk in enumerate(system.model.blocks):
         if not system.fixed[b]:
             v0[b, :6] = np.asarray(blk.velocity, float)[:6]
-    return initial_state(system.c0, v0, float(system.controls.time_step))
+    state = initial_state(system.c0, v0, float(system.controls.time_step))
+    if system.bolts is not None:
+        nb = len(system.bolts)
+        state.bolt_plastic, state.bolt_shear = np.zeros(nb), np.zeros((nb, 3))
+        state.bolt_status = np.zeros(nb, dtype=np.int8)
+    return state
 
 
 class Simulation:

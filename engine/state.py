@@ -121,6 +121,11 @@ class State:
     energies: dict[str, float] = field(default_factory=_zero_energies)
     #: J held by the contact springs at the end of the last step
     contact_energy: float = 0.0
+    #: rock bolts (None without): plastic elongation `(b,)` m, shear force on the head
+    #: block `(b, 3)` N, state `(b,)` (:data:`engine.bolts.ELASTIC`, YIELDED, BROKEN)
+    bolt_plastic: np.ndarray | None = None
+    bolt_shear: np.ndarray | None = None
+    bolt_status: np.ndarray | None = None
     diagnostics: Diagnostics = field(default_factory=Diagnostics)
     #: values derived from this state, computed once (not saved)
     cache: dict[str, Any] = field(default_factory=dict, repr=False, compare=False)
@@ -159,7 +164,8 @@ def initial_state(centroid: np.ndarray, velocity: np.ndarray, dt: float) -> Stat
                  stress=np.zeros((n, 6)), dt=dt, last_dt=dt)
 
 
-_ARRAYS = ("centroid", "affine", "rotation", "velocity", "stress", "last_d", "deepest")
+_ARRAYS = ("centroid", "affine", "rotation", "velocity", "stress", "last_d", "deepest",
+           "bolt_plastic", "bolt_shear", "bolt_status")
 _SCALARS = ("time", "step", "dt", "last_dt", "contact_energy")
 
 

@@ -12,8 +12,9 @@ from dataclasses import dataclass
 import numpy as np
 
 from engine import assembly as asm
+from engine.bolts import BoltSet, bolt_set
 from engine.geometry import Polyhedron
-from engine.model import AnalysisControls, Model
+from engine.model import AnalysisControls, Model, Water
 from engine.tolerances import DEFAULT_TOLERANCES
 
 
@@ -32,11 +33,15 @@ class BlockSystem:
     - `max_step_displacement` m: no point moves more in a step; `search_distance` m
     - `touch_gap` m: closer blocks touch; `open_close_gap` m: the open-close hysteresis
     - `tan_phi`, `cohesion` (Pa), `tension` (Pa) per joint material
+    - `gravity` m/s²: body force per unit mass (gravity plus any pseudo-static seismic
+      load, :attr:`engine.model.Model.body_acceleration`)
     - `loads`: (block, point m, force N) per point load; `fixed_points`: (block, point m)
     - `energy_floor` J: spring energies below it are round-off; `energy_round_off` J: the
       energy balance's round-off (1e-10 of the free blocks' potential energy over the
-      model's size)
+      model's size, and of the bolts' pretension over it)
     - `adaptive_search`: search each step within its own predicted limit
+    - `bolts`: the rock bolts and cables (None: none), :mod:`engine.bolts`
+    - `water`: the water in the joints (None: dry), :mod:`engine.water`
     """
 
     model: Model
@@ -76,6 +81,8 @@ class BlockSystem:
     energy_floor: float
     energy_round_off: float
     adaptive_search: bool = True
+    bolts: BoltSet | None = None
+    water: Water | None = None
 
     @property
     def controls(self) -> AnalysisControls:
@@ -175,13 +182,17 @@ def build_system(model: Model, adaptive_search: bool = True) -> BlockSystem:
                     for ld in model.point_loads),
         fixed_points=tuple((fp.block, np.asarray(fp.point, float))
                            for fp in model.fixed_points),
-        gravity=model.gravity,
+        gravity=model.body_acceleration,
         # J: energy differences below this are round-off (1e-6 of the model's potential
         # energy scale or of a spring pressed by a whole step limit)
         energy_floor=1e-6 * max(
-            float(np.sum((density * volume0)[~fixed])) * float(np.linalg.norm(model.gravity))
+            float(np.sum((density * volume0)[~fixed]))
+            * float(np.linalg.norm(model.body_acceleration))
             * scale, 0.5 * kn * max_step**2),
         energy_round_off=1e-10 * float(np.sum((density * volume0)[~fixed]))
-        * float(np.linalg.norm(model.gravity)) * scale,
+        * float(np.linalg.norm(model.body_acceleration)) * scale
+        + 1e-10 * float(sum(b.pretension for b in model.bolts)) * scale,
         adaptive_search=adaptive_search,
+        bolts=bolt_set(model.bolts) if model.bolts else None,
+        water=model.water,
     )

@@ -30,18 +30,26 @@ from engine.geometry import (
 from engine.model import (
     AnalysisControls,
     Block,
+    Bolt,
     FixedPoint,
+    GroundMotion,
     JointMaterial,
     JointPlane,
     Material,
     Model,
     PointLoad,
+    SeismicCoefficientControls,
+    SeismicLoad,
     StrengthReductionControls,
+    Water,
 )
 from engine.tolerances import DEFAULT_TOLERANCES
-from schemas.errors import Problems, SceneError, fmt_point
+from schemas.errors import Problems, SceneError, fmt_num, fmt_point
 from schemas.scene import (
+    BoltPatternSpec,
+    BoltSpec,
     BoxSpec,
+    CriticalSeismicSpec,
     FactorOfSafetySpec,
     Scene,
     Selection,
@@ -71,6 +79,7 @@ class BuildResult:
     joint_names: list[str]
     warnings: list[str] = field(default_factory=list)
     factor_of_safety: StrengthReductionControls | None = None
+    seismic_coefficient: SeismicCoefficientControls | None = None
 
     def block_index(self, name: str) -> int:
         """Index of the block called `name` (KeyError if none)."""
@@ -414,6 +423,132 @@ class _Locator:
         return None
 
 
+# --------------------------------------------------------------------------- bolts
+
+
+def pattern_bolts(spec: BoltPatternSpec, loc: str, p: Problems
+                  ) -> list[tuple[str, np.ndarray, np.ndarray]]:
+    """The (name, head, anchor) of each bolt of a pattern: heads on a grid in the face
+    (`columns` along the row direction, `rows` along face_normal × row direction), anchors
+    `length` m away along trend / plunge."""
+    n = np.asarray(spec.face_normal, float)
+    if not np.linalg.norm(n) > 0:
+        p.add(f"{loc}.face_normal", "must not be the zero vector")
+        return []
+    n = n / np.linalg.norm(n)
+    u = np.asarray(spec.row_direction, float)
+    u = u - (u @ n) * n
+    if not np.linalg.norm(u) > 1e-9:
+        p.add(f"{loc}.row_direction", "must not be parallel to face_normal")
+        return []
+    u /= np.linalg.norm(u)
+    v = np.cross(n, u)
+    t, pl = np.radians(spec.trend), np.radians(spec.plunge)
+    d = np.array([np.sin(t) * np.cos(pl), np.cos(t) * np.cos(pl), -np.sin(pl)])
+    if d @ n >= 0:
+        p.add(f"{loc}.trend", f"trend {fmt_num(spec.trend)}° / plunge {fmt_num(spec.plunge)}°"
+              " points out of the face (along its outward normal); bolts go into the rock")
+        return []
+    rs = spec.row_spacing or spec.spacing
+    o = np.asarray(spec.origin, float)
+    out = []
+    for r in range(spec.rows):
+        for c in range(spec.columns):
+            head = o + c * spec.spacing * u + r * rs * v
+            out.append((f"{spec.name_prefix}{len(out) + 1}", head, head + spec.length * d))
+    return out
+
+
+def _bolt(spec: BoltSpec | BoltPatternSpec, name: str, head: np.ndarray,
+          anchor: np.ndarray, block: int, anchor_block: int) -> Bolt:
+    inf = float("inf")
+    return Bolt(block=block, head=head, anchor=anchor, anchor_block=anchor_block,
+                axial_stiffness=spec.axial_stiffness, shear_stiffness=spec.shear_stiffness,
+                pretension=spec.pretension,
+                capacity=inf if spec.capacity is None else spec.capacity,
+                shear_capacity=spec.shear_capacity,
+                rupture_displacement=inf if spec.rupture_displacement is None
+                else spec.rupture_displacement, name=name)
+
+
+def _find_at(find: _Locator, sel: Selection | None, point: np.ndarray, loc: str, field: str,
+             p: Problems, block_field: str = "block") -> int | None:
+    """:meth:`_Locator.one` with its problems about the point named `field` (not `point`)
+    and about the selection named `block_field` (not `block`)."""
+    q = Problems()
+    k = find.one(sel, point, loc, q)
+    for item in q.items:
+        where = item["loc"]
+        for old, new in ((".point", f".{field}"), (".block", f".{block_field}")):
+            if where.startswith(f"{loc}{old}"):
+                where = f"{loc}.{new[1:]}{where[len(loc) + len(old):]}"
+                break
+        p.add(where, item["msg"])
+    return k
+
+
+def _anchor_block(find: _Locator, sel: Selection | None, anchor: np.ndarray, head_block: int,
+                  loc: str, p: Problems) -> int | None:
+    """The anchor's block: the one `sel` chooses, else the block other than the head's that
+    contains the anchor, else the ground (-1); None after a problem."""
+    if sel is not None:
+        return _find_at(find, sel, anchor, loc, "anchor", p, "anchor_block")
+    inside, surface = find.inside(anchor)
+    found = [k for k in (inside or surface) if k != head_block]
+    if len(found) > 1:
+        p.add(f"{loc}.anchor", f"point {fmt_point(anchor)} touches several blocks ("
+              + ", ".join(f"'{find.names[k]}'" for k in found)
+              + "); name the block with 'anchor_block'")
+        return None
+    return found[0] if found else -1
+
+
+def _bolts(scene: Scene, find: _Locator, p: Problems) -> list[Bolt]:
+    """The engine's bolts of the scene's `bolts` and `bolt_patterns`."""
+    out: list[Bolt] = []
+    for k, spec in enumerate(scene.bolts):
+        loc = f"bolts[{k}]"
+        head, anchor = np.asarray(spec.head, float), np.asarray(spec.anchor, float)
+        if np.linalg.norm(anchor - head) <= 0:
+            p.add(f"{loc}.anchor", "must differ from head")
+            continue
+        i = _find_at(find, spec.block, head, loc, "head", p)
+        if i is None:
+            continue
+        j = _anchor_block(find, spec.anchor_block, anchor, i, loc, p)
+        if j is not None:
+            out.append(_bolt(spec, spec.name or f"bolt{k + 1}", head, anchor, i, j))
+    for k, spec in enumerate(scene.bolt_patterns):
+        loc = f"bolt_patterns[{k}]"
+        for name, head, anchor in pattern_bolts(spec, loc, p):
+            i = _find_at(find, None, head, f"{loc}", "origin", p)
+            if i is None:
+                continue
+            j = _anchor_block(find, None, anchor, i, f"{loc} ({name})", p)
+            if j is not None:
+                out.append(_bolt(spec, name, head, anchor, i, j))
+    seen: set[str] = set()
+    for b in out:
+        if b.name in seen:
+            p.add("bolts", f"bolt name '{b.name}' is used twice")
+        seen.add(b.name)
+    return out
+
+
+def _water(scene: Scene, jmat_names: list[str]) -> Water | None:
+    """The engine's water of the scene's `water` (None: dry)."""
+    w = scene.water
+    if w is None:
+        return None
+    ps = w.phreatic_surface
+    return Water(
+        unit_weight=w.unit_weight,
+        surface_point=None if ps is None else np.asarray(ps.point, float),
+        surface_normal=None if ps is None else dip_normal(ps.dip, ps.dip_direction),
+        joint_pressure={jmat_names.index(jp.joint_material): jp.pressure
+                        for jp in w.joint_pressures})
+
+
 # --------------------------------------------------------------------------- build
 
 
@@ -489,6 +624,7 @@ def build_model(scene: Scene | str | Path | dict[str, Any]) -> BuildResult:
         i = find.one(pl.block, point, f"boundary.point_loads[{k}]", p)
         if i is not None:
             loads.append(PointLoad(block=i, point=point, force=np.asarray(pl.force, float)))
+    bolts = _bolts(scene, find, p)
     pairs: dict[tuple[int, int], int] = {}
     for k, pair in enumerate(scene.block_pairs):
         found = []
@@ -525,6 +661,22 @@ def build_model(scene: Scene | str | Path | dict[str, Any]) -> BuildResult:
             acceleration_threshold=spec.acceleration_threshold, tolerance=spec.tolerance,
             min_factor=spec.min_factor, max_factor=spec.max_factor, max_runs=spec.max_runs,
             joint_materials=tuple(sorted(set(weak))), watch_blocks=tuple(sorted(set(watch))))
+    kc = None
+    kspec = scene.analysis.critical_seismic_coefficient
+    if kspec is None and scene.analysis.type == "critical_seismic_coefficient":
+        kspec = CriticalSeismicSpec()
+    if kspec is not None:
+        watch = []
+        for k, sel in enumerate(kspec.watch):
+            watch.extend(find.select(
+                sel, f"analysis.critical_seismic_coefficient.watch[{k}]", p))
+        if not watch:
+            watch = [k for k, b in enumerate(blocks) if not b.fixed]
+        kc = SeismicCoefficientControls(
+            observation_time=kspec.observation_time, window_start=kspec.window_start,
+            acceleration_threshold=kspec.acceleration_threshold, tolerance=kspec.tolerance,
+            max_coefficient=kspec.max_coefficient, max_runs=kspec.max_runs,
+            watch_blocks=tuple(sorted(set(watch))))
     p.raise_if_any()
 
     if all(b.fixed for b in blocks):
@@ -560,8 +712,16 @@ def build_model(scene: Scene | str | Path | dict[str, Any]) -> BuildResult:
         },
         pair_joint_material=pairs,
         gravity=np.asarray(scene.gravity, float),
+        seismic=None if scene.seismic is None else SeismicLoad(
+            kh=scene.seismic.kh, azimuth_rad=float(np.radians(scene.seismic.azimuth)),
+            kv=scene.seismic.kv),
         point_loads=loads,
         fixed_points=fixed_points,
+        bolts=bolts,
+        water=_water(scene, jmat_names),
+        ground_motion=None if scene.ground_motion is None else GroundMotion(
+            np.asarray(scene.ground_motion.time, float),
+            scene.ground_motion.scale * np.asarray(scene.ground_motion.acceleration, float)),
         controls=controls,
     )
     return BuildResult(
@@ -573,4 +733,5 @@ def build_model(scene: Scene | str | Path | dict[str, Any]) -> BuildResult:
         joint_names=[scene.joint_name(k) for k in range(len(scene.joints))],
         warnings=warnings,
         factor_of_safety=fos,
+        seismic_coefficient=kc,
     )

@@ -29,6 +29,7 @@ from engine.model import (
     AnalysisControls,
     JointMaterial,
     Material,
+    SeismicCoefficientControls,
     StrengthReductionControls,
 )
 from schemas.errors import (
@@ -48,6 +49,7 @@ _MATERIAL = Material()
 _JOINT = JointMaterial()
 _CONTROLS = AnalysisControls()
 _FOS = StrengthReductionControls()
+_KC = SeismicCoefficientControls()
 
 
 class Limits:
@@ -61,6 +63,8 @@ class Limits:
     max_joint_planes = 2_000
     #: time steps: duration / time_step
     max_steps = 10_000_000
+    #: rock bolts, listed and from patterns
+    max_bolts = 10_000
 
 
 # --------------------------------------------------------------------------- field types
@@ -92,6 +96,9 @@ Dip = _between(0, 90, "degrees")
 DipDirection = _between(-360, 360, "degrees")
 PoissonRatio = _between(0, 0.5, "", hi_open=True)
 Ratio01 = _between(0, 1, "")
+Azimuth = _between(0, 360, "degrees")
+SeismicCoefficient = _between(0, 5, "")
+VerticalSeismicCoefficient = _between(-5, 5, "")
 Name = Annotated[str, Field(min_length=1, max_length=100)]
 
 
@@ -301,6 +308,161 @@ class BoundarySpec(_Model):
     point_loads: list[PointLoadSpec] = Field(default_factory=list)
 
 
+class _BoltProperties(_Model):
+    """What a rock bolt or cable is made of (SI units)."""
+
+    axial_stiffness: NonNegative = Field(
+        3e7, description="N/m, axial spring of the whole free length (default: a 25 mm steel "
+                         "bar 3 m long, EA/L); 0: a constant-force tendon")
+    shear_stiffness: NonNegative = Field(
+        0.0, description="N/m, transverse spring at the head (default 0: a cable)")
+    pretension: NonNegative = Field(0.0, description="N, tension at installation")
+    capacity: Positive | None = Field(
+        None, description="N, axial yield force (default: unlimited); |force| stays below it "
+                          "and the excess becomes plastic elongation")
+    shear_capacity: Positive | None = Field(
+        None, description="N, transverse yield force (default: the axial capacity)")
+    rupture_displacement: Positive | None = Field(
+        None, description="m; the bolt breaks (and stops acting) when its two ends have "
+                          "moved apart by more since installation (default: never)")
+
+    @model_validator(mode="after")
+    def _pretension_below_capacity(self) -> _BoltProperties:
+        if self.capacity is not None and self.pretension > self.capacity:
+            raise ValueError(f"pretension ({fmt_num(self.pretension)} N) must not exceed "
+                             f"capacity ({fmt_num(self.capacity)} N)")
+        return self
+
+
+class BoltSpec(_BoltProperties):
+    """A rock bolt or cable from `head` (a point on or in `block`) to `anchor`: a point in
+    `anchor_block`, by default the block other than the head's that contains the anchor,
+    or the ground (a point that never moves) when no block contains it."""
+
+    name: Name | None = Field(None, description="default bolt1, bolt2, ... by position")
+    head: Vec3 = Field(description="m, where the bolt's plate bears on the block")
+    anchor: Vec3 = Field(description="m, the anchored end")
+    block: Target | None = Field(None, description="the head's block (default: the block "
+                                                   "at `head`)")
+    anchor_block: Target | None = Field(None, description="the anchor's block (default: "
+                                                          "found at `anchor`, else ground)")
+
+
+class BoltPatternSpec(_BoltProperties):
+    """A grid of identical bolts on a face: rows along `row_direction` `spacing` apart
+    (`rows` × `columns`, the second direction normal to it in the face), each `length` m
+    long, pointing into the rock along `trend` / `plunge` (degrees; plunge positive down).
+    Bolts are named `name_prefix` + 1, 2, ..."""
+
+    origin: Vec3 = Field(description="m, the head of the first bolt (on the face)")
+    face_normal: Vec3 = Field(description="outward normal of the face the heads are on")
+    row_direction: Vec3 = Field(description="a direction in the face along which a row runs")
+    spacing: Positive = Field(description="m between bolts along a row")
+    row_spacing: Positive | None = Field(None, description="m between rows (default: "
+                                                           "spacing)")
+    rows: Annotated[int, Field(ge=1, le=1000)] = 1
+    columns: Annotated[int, Field(ge=1, le=1000)] = Field(1, description="bolts per row")
+    length: Positive = Field(description="m, head to anchor")
+    trend: Azimuth = Field(description="degrees clockwise from North of the bolt's "
+                                       "direction into the rock")
+    plunge: _between(-90, 90, "degrees") = Field(description="degrees below horizontal of "
+                                                             "the bolt's direction")
+    name_prefix: Name = "bolt"
+
+
+# --------------------------------------------------------------------------- loads
+
+
+class SeismicSpec(_Model):
+    """Pseudo-static seismic load: body forces kh·g·m horizontally toward `azimuth` and
+    kv·g·m vertically (positive up) on every block that moves (g = |gravity|)."""
+
+    kh: SeismicCoefficient = Field(0.0, description="horizontal seismic coefficient, "
+                                                    "fraction of g, 0 to 5")
+    azimuth: Azimuth = Field(0.0, description="degrees clockwise from North, 0 to 360: the "
+                                              "direction the horizontal force points")
+    kv: VerticalSeismicCoefficient = Field(0.0, description="vertical seismic coefficient, "
+                                                            "fraction of g, positive up, "
+                                                            "-5 to 5")
+
+
+class PhreaticSurfaceSpec(_Model):
+    """The water table as a plane: below it the joints hold water at hydrostatic pressure
+    γw·(depth below the plane, measured vertically)."""
+
+    point: Vec3 = Field(description="m, a point on the water table")
+    dip: _between(0, 90, "degrees", hi_open=True) = Field(
+        0.0, description="degrees, 0 (horizontal) to less than 90")
+    dip_direction: DipDirection = Field(0.0, description="degrees clockwise from North")
+
+
+class JointPressureSpec(_Model):
+    """A uniform water pressure in the joints of one joint material (a joint set or a named
+    joint given its own joint material), added to the phreatic surface's."""
+
+    joint_material: Name
+    pressure: NonNegative = Field(description="Pa")
+
+
+class WaterSpec(_Model):
+    """Water in the joints: pressure normal to the faces where blocks touch (uplift on
+    sliding planes, thrust in tension cracks), following the blocks as they move."""
+
+    unit_weight: Positive = Field(9810.0, description="N/m³, unit weight of water")
+    phreatic_surface: PhreaticSurfaceSpec | None = None
+    joint_pressures: list[JointPressureSpec] = Field(default_factory=list)
+
+    @model_validator(mode="after")
+    def _something(self) -> WaterSpec:
+        if self.phreatic_surface is None and not self.joint_pressures:
+            raise ValueError("give 'phreatic_surface' and/or 'joint_pressures'")
+        return self
+
+
+class GroundMotionSpec(_Model):
+    """An acceleration time history of the ground (the fixed blocks), three components in
+    m/s²: inline (`time` and `acceleration`) or as `csv` text (rows `t, ax, ay, az`, an
+    optional header line). Linear between samples (repeat a time for a jump), zero outside
+    them, times `scale`. Applied as the inertial body force −m·a(t) on every block that
+    moves: displacements are relative to the ground."""
+
+    time: list[float] | None = Field(None, description="s, non-decreasing")
+    acceleration: list[Vec3] | None = Field(None, description="m/s², one (ax, ay, az) per time")
+    csv: str | None = Field(None, description="CSV text: t, ax, ay, az per row (s, m/s²)")
+    scale: float = Field(1.0, description="factor on the accelerations")
+
+    @model_validator(mode="after")
+    def _history(self) -> GroundMotionSpec:
+        if self.csv is not None:
+            if self.time is not None or self.acceleration is not None:
+                raise ValueError("give 'csv' or 'time' and 'acceleration', not both")
+            rows = []
+            for n, line in enumerate(self.csv.strip().splitlines(), 1):
+                cells = [c.strip() for c in line.replace(";", ",").split(",") if c.strip()]
+                try:
+                    rows.append([float(c) for c in cells])
+                except ValueError:
+                    if n == 1:
+                        continue  # a header
+                    raise ValueError(f"csv line {n}: not numbers: {line!r}") from None
+                if len(cells) != 4:
+                    raise ValueError(f"csv line {n}: expected 4 values (t, ax, ay, az), "
+                                     f"got {len(cells)}")
+            self.time = [r[0] for r in rows]
+            self.acceleration = [r[1:] for r in rows]
+            self.csv = None
+        if self.time is None or self.acceleration is None:
+            raise ValueError("give 'time' and 'acceleration' (or 'csv')")
+        if len(self.time) != len(self.acceleration) or len(self.time) < 2:
+            raise ValueError(f"'time' and 'acceleration' need the same length, at least 2 "
+                             f"(got {len(self.time)} and {len(self.acceleration)})")
+        if any(b < a for a, b in zip(self.time, self.time[1:], strict=False)):
+            raise ValueError("'time' must not decrease")
+        if not all(math.isfinite(x) for x in self.time):
+            raise ValueError("'time' must be finite")
+        return self
+
+
 # --------------------------------------------------------------------------- analysis
 
 
@@ -348,10 +510,45 @@ class FactorOfSafetySpec(_Model):
         return self
 
 
+class CriticalSeismicSpec(_Model):
+    """Critical (yield) seismic coefficient: bisect on kh (the scene's `seismic` azimuth and
+    kv kept, full joint strengths) for the kh at which the watched blocks start to
+    accelerate (the trial criterion of `factor_of_safety`)."""
+
+    tolerance: Positive = Field(_KC.tolerance, description="stop when the kh bracket is "
+                                                           "this narrow (relative)")
+    max_coefficient: SeismicCoefficient = Field(_KC.max_coefficient,
+                                                description="largest kh tried, 0 to 5")
+    observation_time: Positive = Field(_KC.observation_time, description="s simulated per "
+                                                                         "trial")
+    window_start: NonNegative = Field(_KC.window_start,
+                                      description="s; start of the averaging window")
+    acceleration_threshold: Positive = Field(
+        _KC.acceleration_threshold, description="m/s²; a trial whose watched blocks "
+                                                "accelerate more on average fails")
+    max_runs: Annotated[int, Field(ge=1, le=1000)] = Field(_KC.max_runs,
+                                                            description="trials at most")
+    watch: list[Target] = Field(
+        default_factory=list, description="blocks whose motion decides (default: all free)"
+    )
+
+    @model_validator(mode="after")
+    def _consistent(self) -> CriticalSeismicSpec:
+        if self.max_coefficient <= 0:
+            raise ValueError("max_coefficient must be positive")
+        if self.window_start >= self.observation_time:
+            raise ValueError(
+                f"window_start ({fmt_num(self.window_start)} s) must be before "
+                f"observation_time ({fmt_num(self.observation_time)} s)"
+            )
+        return self
+
+
 class AnalysisSpec(_Model):
     """How to run: time, contact penalties, integration mode, block model."""
 
-    type: Literal["simulation", "factor_of_safety"] = "simulation"
+    type: Literal["simulation", "factor_of_safety", "critical_seismic_coefficient"] = (
+        "simulation")
     duration: Positive = Field(_CONTROLS.duration, description="s simulated")
     time_step: Positive = Field(_CONTROLS.time_step, description="s, initial time step")
     min_time_step: Positive = Field(_CONTROLS.min_time_step,
@@ -401,6 +598,7 @@ class AnalysisSpec(_Model):
                     "instead of ringing on the penalty springs; 0 turns them off")
     record_contacts: bool = _CONTROLS.record_contacts
     factor_of_safety: FactorOfSafetySpec | None = None
+    critical_seismic_coefficient: CriticalSeismicSpec | None = None
 
     @model_validator(mode="after")
     def _times(self) -> AnalysisSpec:
@@ -457,6 +655,14 @@ class Scene(_Model):
     block_pairs: list[BlockPairSpec] = Field(default_factory=list)
     boundary: BoundarySpec = Field(default_factory=BoundarySpec)
     gravity: Vec3 = Field(default_factory=lambda: [0.0, 0.0, -9.81], description="m/s²")
+    seismic: SeismicSpec | None = Field(
+        None, description="pseudo-static seismic coefficients (none: no seismic load)")
+    water: WaterSpec | None = Field(None, description="water in the joints (none: dry)")
+    ground_motion: GroundMotionSpec | None = Field(
+        None, description="acceleration time history of the ground (none: none)")
+    bolts: list[BoltSpec] = Field(default_factory=list, description="rock bolts and cables")
+    bolt_patterns: list[BoltPatternSpec] = Field(
+        default_factory=list, description="grids of identical bolts on a face")
     analysis: AnalysisSpec = Field(default_factory=AnalysisSpec)
 
     @model_validator(mode="after")
@@ -643,6 +849,13 @@ def scene_problems(scene: Scene) -> list[dict[str, str]]:
         for k, name in enumerate(fos.joint_materials):
             joint_material(f"analysis.factor_of_safety.joint_materials[{k}]", name)
 
+    if scene.water is not None:
+        for k, jp in enumerate(scene.water.joint_pressures):
+            joint_material(f"water.joint_pressures[{k}].joint_material", jp.joint_material)
+    if scene.analysis.type == "critical_seismic_coefficient" and scene.seismic is None:
+        p.add("seismic", "the critical_seismic_coefficient analysis needs 'seismic' with the "
+              "azimuth the horizontal force points to (and kv, if any)")
+
     # sizes, before any heavy work
     nv = _count_vertices(scene)
     if nv > Limits.max_vertices:
@@ -658,6 +871,10 @@ def scene_problems(scene: Scene) -> list[dict[str, str]]:
         elif (n := estimate_cut_blocks(scene)) > Limits.max_blocks:
             p.add("joints", f"the joints would cut the domain into about {fmt_count(n)} "
                   f"blocks; the limit is {Limits.max_blocks:,} (increase the spacings)")
+    nb = len(scene.bolts) + sum(bp.rows * bp.columns for bp in scene.bolt_patterns)
+    if nb > Limits.max_bolts:
+        p.add("bolt_patterns" if scene.bolt_patterns else "bolts",
+              f"{nb:,} bolts in all; the limit is {Limits.max_bolts:,}")
     a = scene.analysis
     steps = a.duration / a.time_step
     if steps > Limits.max_steps:

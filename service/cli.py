@@ -20,7 +20,7 @@ from typing import Any
 
 import numpy as np
 
-from engine.analyses import TrialRun, factor_of_safety
+from engine.analyses import TrialRun, critical_seismic_coefficient, factor_of_safety
 from engine.results import ResultWriter
 from engine.simulation import STATUS_COMPLETED, Progress, run
 from schemas.convert import BuildResult, build_model
@@ -33,6 +33,8 @@ from service.documents import (
     fos_document,
     run_summary,
     scene_contacts_document,
+    seismic_controls,
+    seismic_document,
     surface,
     write_json_atomic,
 )
@@ -301,6 +303,31 @@ def cmd_fos(args: argparse.Namespace) -> int:
     return EXIT_OK if result.status == STATUS_COMPLETED else EXIT_RUN
 
 
+def cmd_seismic(args: argparse.Namespace) -> int:
+    """Critical (yield) seismic coefficient by bisection on kh."""
+    built = _load(args.scene)
+
+    def note(r: TrialRun) -> None:
+        if not args.quiet:
+            verdict = "fails" if r.failed else "holds"
+            print(f"kh = {r.factor:.5f}: {verdict} (mean acceleration "
+                  f"{r.mean_acceleration:.3g} m/s²)", file=sys.stderr, flush=True)
+
+    if not args.quiet:
+        _note_compilation()
+    result = critical_seismic_coefficient(built.model, seismic_controls(built), progress=note)
+    doc = seismic_document(result, built)
+    if args.json:
+        _print_json(doc)
+    else:
+        print(f"critical seismic coefficient kh = {result.critical_coefficient:.5f} "
+              f"(azimuth {result.azimuth_deg:g}°, kv {result.kv:g}) "
+              f"from {len(result.runs)} runs")
+        if result.message:
+            print(result.message)
+    return EXIT_OK if result.status == STATUS_COMPLETED else EXIT_RUN
+
+
 def _listed(values: list[str] | None) -> list[str] | None:
     """Values of a repeatable option that also takes comma-separated lists."""
     if values is None:
@@ -440,6 +467,12 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--json", action="store_true", help="print one JSON document")
     p.add_argument("--quiet", action="store_true", help="no progress output")
     p.set_defaults(func=cmd_fos)
+
+    p = sub.add_parser("seismic", help="critical (yield) seismic coefficient kh by bisection")
+    p.add_argument("scene", help="scene JSON file (its 'seismic' gives azimuth and kv)")
+    p.add_argument("--json", action="store_true", help="print one JSON document")
+    p.add_argument("--quiet", action="store_true", help="no progress output")
+    p.set_defaults(func=cmd_seismic)
 
     p = sub.add_parser("plot", help="PNG plots of a result file")
     p.add_argument("result", help="HDF5 result file")

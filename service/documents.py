@@ -22,7 +22,12 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 if TYPE_CHECKING:
-    from engine.analyses import FactorOfSafetyResult, StrengthReductionControls
+    from engine.analyses import (
+        FactorOfSafetyResult,
+        SeismicCoefficientControls,
+        SeismicCoefficientResult,
+        StrengthReductionControls,
+    )
     from engine.geometry import Polyhedron
     from engine.results import Result
     from schemas.convert import BuildResult
@@ -243,6 +248,26 @@ def fos_document(result: FactorOfSafetyResult, build: BuildResult) -> dict[str, 
     jm = c.joint_materials if c.joint_materials is not None else range(
         len(build.joint_material_names))
     doc["joint_materials"] = [build.joint_material_names[k] for k in jm]
+    watched = c.watch_blocks if c.watch_blocks is not None else [
+        k for k, b in enumerate(build.model.blocks) if not b.fixed]
+    doc["watch_blocks"] = [build.block_names[k] for k in watched]
+    doc["warnings"] = list(build.warnings)
+    return finite(doc)
+
+
+def seismic_controls(build: BuildResult) -> SeismicCoefficientControls:
+    """Critical seismic coefficient controls from the scene's
+    `analysis.critical_seismic_coefficient` (engine defaults when absent)."""
+    from engine.analyses import SeismicCoefficientControls
+
+    return build.seismic_coefficient or SeismicCoefficientControls()
+
+
+def seismic_document(result: SeismicCoefficientResult, build: BuildResult) -> dict[str, Any]:
+    """The critical seismic coefficient answer: kh, azimuth (deg), kv, trials (kh tried,
+    verdict, mean acceleration m/s²), status, and the names of the blocks watched."""
+    doc = result.as_dict()
+    c = seismic_controls(build)
     watched = c.watch_blocks if c.watch_blocks is not None else [
         k for k, b in enumerate(build.model.blocks) if not b.fixed]
     doc["watch_blocks"] = [build.block_names[k] for k in watched]

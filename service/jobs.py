@@ -2,9 +2,9 @@
 
 A backend hands :func:`execute` a :class:`~service.tasks.TaskContext` that reports progress
 (throttled) and says when to stop; the process's runner (service.processes) writes the
-artifacts (`result.h5` + `summary.json`, `fos.json` or `blocks.json`) and returns an
-:class:`~service.tasks.Outcome`. JSON artifacts are written to a temporary file and
-renamed, so a reader never sees half a file; the HDF5 writer flushes as it goes.
+artifacts (`result.h5` + `summary.json`, `fos.json`, `seismic.json` or `blocks.json`) and
+returns an :class:`~service.tasks.Outcome`. JSON artifacts are written to a temporary file
+and renamed, so a reader never sees half a file; the HDF5 writer flushes as it goes.
 
 The RQ entry point (:func:`run_rq`) runs in RQ's work horse: it keeps a heartbeat key in
 Redis while it runs (the API re-queues a job whose heartbeat stopped), dies with the worker

@@ -20,6 +20,8 @@ from service.documents import (
     fos_controls,
     fos_document,
     run_summary,
+    seismic_controls,
+    seismic_document,
     write_json_atomic,
 )
 from service.tasks import MODEL, Cancelled, Outcome, TaskContext
@@ -109,6 +111,38 @@ def _factor_of_safety(build: BuildResult, scene_text: str, job_dir: Path,
     return Outcome("failed", f"model problem: {result.message}", MODEL)
 
 
+def _critical_seismic(build: BuildResult, scene_text: str, job_dir: Path,
+                      ctx: TaskContext) -> Outcome:
+    from engine.analyses import TrialRun, critical_seismic_coefficient
+
+    controls = seismic_controls(build)
+    runs: list[TrialRun] = []
+
+    def progress(r: TrialRun) -> None:
+        runs.append(r)
+        verdict = "fails" if r.failed else "holds"
+        ctx.report(100.0 * len(runs) / controls.max_runs, force=True, step=len(runs),
+                   message=f"trial {len(runs)}: kh {r.factor:.4g} {verdict}")
+        if ctx.should_stop():
+            raise Cancelled
+
+    ctx.report(0.0, force=True, message="first trial running")
+    try:
+        result = critical_seismic_coefficient(build.model, controls, progress=progress)
+    except Cancelled:
+        write_json_atomic(job_dir / "seismic.json", finite({
+            "status": "cancelled", "runs": [r.__dict__ for r in runs],
+            "message": f"cancelled after {len(runs)} trials"}))
+        return Outcome("dismissed", f"cancelled after {len(runs)} trials; partial results kept")
+    write_json_atomic(job_dir / "seismic.json", seismic_document(result, build))
+    ctx.report(100.0, force=True, step=len(result.runs))
+    if result.status == "completed":
+        return Outcome("successful", f"critical seismic coefficient "
+                       f"{result.critical_coefficient:.4g}"
+                       + (f" ({result.message})" if result.message else ""))
+    return Outcome("failed", f"model problem: {result.message}", MODEL)
+
+
 def _block_cutting(build: BuildResult, scene_text: str, job_dir: Path,
                    ctx: TaskContext) -> Outcome:
     write_json_atomic(job_dir / "blocks.json", blocks_document(build))
@@ -129,6 +163,12 @@ PROCESSES: dict[str, Process] = {p.id: p for p in (
             "analysis.factor_of_safety: watched blocks, joint materials, times).",
             ("fos.json",), "fos.json", "factor_of_safety", "factor_of_safety",
             _factor_of_safety),
+    Process("critical-seismic-coefficient", "Critical seismic coefficient",
+            "Find by bisection on the horizontal pseudo-static coefficient kh (the scene's "
+            "seismic azimuth and kv, full joint strengths) the kh at which the watched blocks "
+            "start to accelerate (the scene's analysis.critical_seismic_coefficient).",
+            ("seismic.json",), "seismic.json", "critical_seismic_coefficient",
+            "critical_seismic_coefficient", _critical_seismic),
     Process("block-cutting", "Block cutting",
             "Cut the domain by the joints and list the blocks (volume, centroid, vertices, "
             "faces); nothing is run.",

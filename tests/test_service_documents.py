@@ -47,8 +47,10 @@ def two_cubes_fos_scene() -> dict[str, Any]:
 
 
 def test_process_registry_is_the_one_list() -> None:
-    assert PROCESS_IDS == ("simulation", "factor-of-safety", "block-cutting")
+    assert PROCESS_IDS == ("simulation", "factor-of-safety", "critical-seismic-coefficient",
+                           "block-cutting")
     assert default_process("factor_of_safety") == "factor-of-safety"
+    assert default_process("critical_seismic_coefficient") == "critical-seismic-coefficient"
     assert default_process("simulation") == "simulation"
     for p in PROCESSES.values():
         assert p.main_artifact in p.artifacts and callable(p.run)
