@@ -122,10 +122,10 @@ def _fmt(x: Any) -> str:
     return escape(str(x))
 
 
-def _table(rows: Iterable[Iterable[Any]], head: Iterable[str]) -> str:
+def _table(rows: Iterable[Iterable[Any]], head: Iterable[str] = ()) -> str:
     h = "".join(f"<th>{escape(c)}</th>" for c in head)
     body = "".join("<tr>" + "".join(f"<td>{_fmt(c)}</td>" for c in r) + "</tr>" for r in rows)
-    return f"<table><tr>{h}</tr>{body}</table>"
+    return f"<table>{f'<tr>{h}</tr>' if h else ''}{body}</table>"
 
 
 def _scene_section(scene: dict[str, Any]) -> str:
@@ -159,16 +159,18 @@ def _scene_section(scene: dict[str, Any]) -> str:
     return "".join(out)
 
 
-def _blocks_section(summary: dict[str, Any]) -> str:
+def _blocks_section(summary: dict[str, Any], meta: dict[str, Any]) -> str:
     blocks = summary.get("blocks") or []
     if not blocks:
         return ""
+    fixed, volume = meta.get("fixed") or [], meta.get("volume") or []
     rows = []
     for k, b in enumerate(blocks):
         d = b.get("displacement") or [0.0, 0.0, 0.0]
-        rows.append([b.get("name") or k, "fixed" if b.get("fixed") else "free",
-                     b.get("volume", ""), *(_num(x) for x in d), _num(_norm(d)),
-                     *_trend_plunge(d)])
+        rows.append([b.get("name") or k,
+                     ("fixed" if fixed[k] else "free") if k < len(fixed) else "",
+                     _num(volume[k]) if k < len(volume) else "", *(_num(x) for x in d),
+                     _num(_norm(d)), *_trend_plunge(d)])
     shown = rows[:200]
     more = f"<p class='muted'>… and {len(rows) - 200} more blocks</p>" if len(rows) > 200 else ""
     return ("<h3>Blocks (final displacement of the centroid)</h3>" + _table(
@@ -221,7 +223,7 @@ def report_html(job: JobRecord, root: str, job_dir: Path, scene_text: str,
              f"{escape(PROCESSES[job.process].title)}</h1>")
     s.append(_table([["job", job.id], ["status", job.status], ["message", job.message],
                      ["created", _iso(job.created)], ["finished", _iso(job.finished)]],
-                    ["", ""]))
+                    ()))
     summary = docs.get("summary.json") or {}
     fos = docs.get("fos.json")
     if fos:
@@ -238,13 +240,17 @@ def report_html(job: JobRecord, root: str, job_dir: Path, scene_text: str,
         extra = {k: v for k, v in fos.items() if k not in ("runs", "warnings", "message",
                                                            "status", "factor_of_safety")}
         if extra:
-            s.append(_table(extra.items(), ["", ""]))
+            s.append(_table(extra.items(), ()))
     s.append("<h2>Scene</h2>" + _scene_section(scene))
     if summary:
-        keys = ("status", "steps", "simulated_time", "message")
-        s.append("<h2>Result</h2>" + _table(((k, summary[k]) for k in keys if k in summary),
-                                            ["", ""]))
-        s.append(_blocks_section(summary))
+        keys = ("status", "message", "steps", "simulated_time", "wall_time", "penalty",
+                "max_penetration", "time_step_cuts", "relaxed_contacts")
+        fixed = result_meta.get("fixed") or []
+        counts = (f"{len(summary.get('blocks') or [])} blocks"
+                  + (f", {sum(map(bool, fixed))} fixed" if fixed else ""))
+        s.append(f"<h2>Result</h2><p>{escape(counts)}</p>"
+                 + _table((k, summary[k]) for k in keys if k in summary))
+        s.append(_blocks_section(summary, result_meta))
     elif "blocks.json" in docs:
         blocks = docs["blocks.json"].get("blocks", [])
         s.append(f"<h2>Blocks</h2><p>{len(blocks)} blocks after cutting.</p>")
@@ -266,7 +272,7 @@ def report_html(job: JobRecord, root: str, job_dir: Path, scene_text: str,
                 ["scene schema", result_meta.get("schema_version", "–")],
                 ["service", VERSION], ["python", platform.python_version()],
                 ["numpy", numpy.__version__], ["scipy", scipy.__version__]]
-    s.append("<h2>Versions and provenance</h2>" + _table(versions, ["", ""]))
+    s.append("<h2>Versions and provenance</h2>" + _table(versions, ()))
     links = " · ".join(f'<a href="{escape(h)}">{t}</a>' for t, h in job_links(job, root)
                        if t != "report")
     body = (_bar(root, f"<span>report</span> {links}")

@@ -224,7 +224,8 @@ def report(job: JobRecord, settings: Settings, scene_text: str, root: str) -> st
         with open_result(d / RESULT_FILE) as r:
             meta = {"engine_version": r.engine_version,
                     "schema_version": r.schema_version or "–",
-                    "scene_sha256": _text(r._file["scene"].attrs.get("sha256", "–"))}
+                    "scene_sha256": _text(r._file["scene"].attrs.get("sha256", "–")),
+                    "fixed": r.fixed.tolist(), "volume": r.volume.tolist()}
     return report_html(job, root, d, scene_text, names, meta)
 
 
