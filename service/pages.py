@@ -204,9 +204,10 @@ def _trend_plunge(d: list[float]) -> list[str]:
 
 
 def report_html(job: JobRecord, root: str, job_dir: Path, scene_text: str,
-                plots: list[str], result_meta: dict[str, Any]) -> str:
+                plots: list[str], result_meta: dict[str, Any],
+                figures: dict[str, str] | None = None) -> str:
     """The printable report of a finished job: scene, result, FS, plots, warnings,
-    versions and the scene hash."""
+    versions and the scene hash; `figures`: more images (caption -> src) after the FS."""
     base = f"{root}/jobs/{job.id}"
     try:
         scene = json.loads(scene_text) if scene_text else {}
@@ -241,6 +242,9 @@ def report_html(job: JobRecord, root: str, job_dir: Path, scene_text: str,
                                                            "status", "factor_of_safety")}
         if extra:
             s.append(_table(extra.items(), ()))
+    for caption, src in (figures or {}).items():
+        s.append(f'<figure><img src="{escape(src)}" alt="{escape(caption)}">'
+                 f"<figcaption class='muted'>{escape(caption)}</figcaption></figure>")
     s.append("<h2>Scene</h2>" + _scene_section(scene))
     if summary:
         keys = ("status", "message", "steps", "simulated_time", "wall_time", "penalty",

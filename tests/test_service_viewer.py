@@ -6,6 +6,7 @@ Real-browser tests of the same pages: tests/test_service_viewer_browser.py.
 from __future__ import annotations
 
 import hashlib
+import json
 import re
 import time
 from collections.abc import Iterator
@@ -223,3 +224,31 @@ def test_trend_and_plunge() -> None:
     assert trend_plunge([1, 0, 0]) == pytest.approx((90.0, 0.0))  # East, horizontal
     assert trend_plunge([0, -1, -1]) == pytest.approx((180.0, 45.0))  # South, down 45°
     assert trend_plunge([-1, 1, 0]) == pytest.approx((315.0, 0.0))
+
+
+def test_report_of_a_factor_of_safety_job(tmp_path: Path) -> None:
+    from service.backends.store import JobStore
+
+    settings = Settings(data_dir=tmp_path / "data")
+    settings.data_dir.mkdir(parents=True)
+    store = JobStore(settings.db_path)
+    scene = {**cube_scene(), "name": "cube FoS"}
+    job, _ = store.submit(process="factor-of-safety", scene=json.dumps(scene),
+                          client="ip:testclient", quota=10)
+    runs = [{"factor": 1.0, "failed": False, "mean_acceleration": 0.0, "status": "completed"},
+            {"factor": 2.0, "failed": True, "mean_acceleration": 0.4, "status": "completed"},
+            {"factor": 1.5, "failed": False, "mean_acceleration": 0.0, "status": "completed"}]
+    settings.job_dir(job.id).mkdir(parents=True)
+    (settings.job_dir(job.id) / "fos.json").write_text(json.dumps({
+        "factor_of_safety": 1.625, "critical_friction_angle": 27.3, "runs": runs,
+        "status": "completed", "message": "", "warnings": ["a warning of the build"]}))
+    store.update(job.id, status="successful", progress=100.0, finished=time.time())
+    with make_client(settings.data_dir) as c:
+        r = c.get(f"/jobs/{job.id}/report")
+        assert c.get(f"/jobs/{job.id}/viewer").status_code == 404  # no steps to view
+    assert r.status_code == 200
+    text = r.text
+    assert "<b id='fs'>1.625</b>" in text and "cube FoS" in text
+    assert "a warning of the build" in text and "Bisection history" in text
+    assert text.count("<tr>") >= 4 and 'src="data:image/png;base64,' in text
+    assert hashlib.sha256(json.dumps(scene).encode()).hexdigest() in text

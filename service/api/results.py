@@ -226,7 +226,26 @@ def report(job: JobRecord, settings: Settings, scene_text: str, root: str) -> st
                     "schema_version": r.schema_version or "–",
                     "scene_sha256": _text(r._file["scene"].attrs.get("sha256", "–")),
                     "fixed": r.fixed.tolist(), "volume": r.volume.tolist()}
-    return report_html(job, root, d, scene_text, names, meta)
+    figures = {}
+    fos = d / "fos.json"
+    if fos.is_file():
+        figures["Bisection of the reduction factor"] = fos_figure(fos)
+    return report_html(job, root, d, scene_text, names, meta, figures)
+
+
+def fos_figure(fos: Path) -> str:
+    """The FoS trials plot of a fos.json (made beside it once) as a data: URI."""
+    import base64
+
+    png = fos.with_name("fos_trials.png")
+    with _lock(str(fos) + "/plot"):
+        if not png.is_file() or png.stat().st_mtime < fos.stat().st_mtime:
+            from engine.plots import plot_fos_trials
+
+            doc = json.loads(fos.read_text(encoding="utf-8"))
+            fs = doc.get("factor_of_safety")
+            plot_fos_trials(doc.get("runs") or [], png, fs if isinstance(fs, float) else None)
+    return "data:image/png;base64," + base64.b64encode(png.read_bytes()).decode()
 
 
 def _text(value: Any) -> str:
