@@ -124,15 +124,13 @@ def geometry(result: Result) -> tuple[dict[str, Any], dict[str, np.ndarray]]:
 
 
 def _quaternions(affine: np.ndarray) -> np.ndarray:
-    """Quaternions (x, y, z, w) `(..., 4)` of the rotations nearest the maps `(..., 3, 3)`."""
+    """Quaternions (x, y, z, w) `(..., 4)` of the rotations nearest the maps `(..., 3, 3)`
+    (scipy's from_matrix: the rotation of the polar decomposition, also for a map with
+    strain)."""
     flat = affine.reshape(-1, 3, 3)
     if not len(flat):
         return np.zeros((*affine.shape[:-2], 4))
-    u, _, vt = np.linalg.svd(flat)
-    d = np.sign(np.linalg.det(u @ vt))
-    u[:, :, 2] *= d[:, None]
-    q = Rotation.from_matrix(u @ vt).as_quat()
-    return q.reshape(*affine.shape[:-2], 4)
+    return Rotation.from_matrix(flat).as_quat().reshape(*affine.shape[:-2], 4)
 
 
 def frames(result: Result, start: int = 0, stop: int | None = None, stride: int = 1, *,

@@ -72,7 +72,8 @@ def home_html(root: str, jobs: Iterable[JobRecord] | None, total: int = 0) -> st
 def viewer_html(job: JobRecord, root: str, poll_ms: int = 2000) -> str:
     """The 3-D viewer of a job's result (loads service/static/viewer.js)."""
     base = f"{root}/jobs/{job.id}"
-    cfg = {"job": base, "frames": f"{base}/results/frames", "poll_ms": poll_ms}
+    cfg = {"job": base, "frames": f"{base}/results/frames", "poll_ms": poll_ms,
+           "max_frames": 2000, "max_bytes": 48_000_000}
     importmap = {"imports": {"three": f"{root}/static/three/three.module.min.js",
                              "three/addons/": f"{root}/static/three/"}}
     head = (f'<script type="importmap">{json.dumps(importmap)}</script>'
@@ -105,7 +106,8 @@ def viewer_html(job: JobRecord, root: str, poll_ms: int = 2000) -> str:
             '<label><input id="follow" type="checkbox" checked> follow</label>'
             '<label>fps <input id="fps" type="number" min="1" max="60" value="15" '
             'style="width:3.5em"></label>'
-            '<span id="status" class="muted"></span><span id="load-time" class="muted"></span>'
+            '<span id="stride" class="muted"></span><span id="status" class="muted"></span>'
+            '<span id="load-time" class="muted"></span>'
             "</div>"
             f'<script type="module" src="{root}/static/viewer.js"></script>')
     return _page(f"PolyDDA viewer {job.id[:8]}", root, body, cls="viewer", head=head)

@@ -16,7 +16,13 @@ from typing import Any
 import httpx
 import pytest
 
-from tests.service_helpers import Server, synthetic_job, wait_final, wedge_scene
+from tests.service_helpers import (
+    Server,
+    cube_scene,
+    synthetic_job,
+    wait_final,
+    wedge_scene,
+)
 
 CHROMIUM = shutil.which("chromium") or "/usr/bin/chromium"
 ARGS = ["--no-sandbox", "--disable-gpu", "--enable-unsafe-swiftshader",
@@ -98,7 +104,8 @@ def test_wedge_viewer_draws_animates_and_picks(served: Any) -> None:
         page.keyboard.press("End")
         shot(page, "viewer.png")
         page.check("#contacts")  # contacts of every frame are fetched on demand
-        page.wait_for_function("polydda.frame === 30", timeout=10_000)
+        page.wait_for_function("polydda.frame === 30 && polydda.contactsShown >= 1",
+                               timeout=10_000)
         page.click("#play")
         page.wait_for_function("polydda.frame >= 2 && polydda.frame < 30", timeout=10_000)
     finally:
@@ -142,4 +149,24 @@ def test_thousand_blocks_open_in_under_3_s(served: Any) -> None:
         print(f"one frame change: {time.perf_counter() - t1:.3f} s")
     finally:
         page.close()
+    assert bad == []
+
+
+def test_viewer_follows_a_running_job(served: Any) -> None:
+    server = served[0]
+    with httpx.Client(base_url=server.url, timeout=30) as client:
+        url = client.post("/jobs", json=cube_scene(duration=60.0, record_interval=5)).headers[
+            "Location"]
+        page, bad = open_page(served, url.removeprefix(server.url) + "/viewer")
+        try:
+            page.wait_for_function("window.polydda && window.polydda.ready", timeout=30_000)
+            first = page.evaluate("polydda.frameCount")
+            assert page.evaluate("polydda.status") == "running"
+            # new steps arrive by polling and the view moves to the newest
+            page.wait_for_function(f"polydda.frameCount >= {first} + 2 && "
+                                   "polydda.frame === polydda.frameCount - 1", timeout=20_000)
+            assert page.evaluate("polydda.blockCount") == 2
+        finally:
+            page.close()
+            client.delete(url)
     assert bad == []

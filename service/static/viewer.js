@@ -138,13 +138,17 @@ function build(head, a) {
   controls.update();
   g = { head, a, n, V, T, vblock, rel, pos, triPos, triCol, mesh, edges, joints, contacts,
         disp: new Series(3 * n), rot: new Series(4 * n), vel: new Series(3 * n),
-        steps: [], times: [], scale: { displacement: 0, velocity: 0 },
-        contactOffsets: null, contactPoints: null, contactModes: null };
+        steps: [], times: [], index: [], scale: { displacement: 0, velocity: 0 },
+        nSteps: head.n_steps, next: 0, stride: 1, contactCache: new Map() };
 }
 
 function appendMotion(head, a) {
   g.disp.append(a.displacement); g.rot.append(a.rotation); g.vel.append(a.velocity);
   g.steps.push(...head.steps); g.times.push(...head.times);
+  for (let i = 0; i < head.count; i++) g.index.push(head.start + i * head.stride);
+  g.nSteps = head.n_steps;
+  if (head.next_start != null) g.next = head.next_start;
+  else if (head.count) g.next = g.index[g.index.length - 1] + head.stride;
   for (const [key, arr, w] of [["displacement", a.displacement, 3], ["velocity", a.velocity, 3]]) {
     let m = g.scale[key];
     for (let i = 0; i < arr.length; i += w) m = Math.max(m, Math.hypot(arr[i], arr[i + 1], arr[i + 2]));
@@ -211,19 +215,31 @@ function draw(k) {
 }
 
 function drawContacts(k) {
-  const show = $("contacts").checked && g.contactOffsets && k + 1 < g.contactOffsets.length;
-  g.contacts.visible = !!show;
-  if (!show) return;
-  const a = g.contactOffsets[k], b = g.contactOffsets[k + 1];
-  const pts = g.contactPoints.subarray(3 * a, 3 * b);
-  const col = new Float32Array(3 * (b - a));
+  const c = $("contacts").checked ? g.contactCache.get(g.index[k]) : null;
+  g.contacts.visible = !!c;
+  if (!c) {
+    if ($("contacts").checked) loadContacts(k);
+    return;
+  }
   const MODE = [[0.55, 0.55, 0.55], [0.15, 0.4, 0.95], [0.95, 0.45, 0.1]];  // open, locked, sliding
-  for (let i = 0; i < b - a; i++) col.set(MODE[g.contactModes[a + i]] || [0, 0, 0], 3 * i);
+  const col = new Float32Array(c.point.length);
+  for (let i = 0; i < c.mode.length; i++) col.set(MODE[c.mode[i]] || [0, 0, 0], 3 * i);
   const geo = new THREE.BufferGeometry();
-  geo.setAttribute("position", new THREE.BufferAttribute(pts, 3));
+  geo.setAttribute("position", new THREE.BufferAttribute(c.point, 3));
   geo.setAttribute("color", new THREE.BufferAttribute(col, 3));
   g.contacts.geometry.dispose();
   g.contacts.geometry = geo;
+}
+
+async function loadContacts(k) {
+  // the contacts of one recorded step, fetched when it is shown (then kept)
+  const i = g.index[k];
+  if (g.contactCache.has(i)) return;
+  g.contactCache.set(i, null);
+  const { arrays } = await getFrames({ start: i, stop: i + 1, geometry: false, contacts: true });
+  g.contactCache.set(i, { point: arrays.contact_point, mode: arrays.contact_mode });
+  state.contactsShown = (state.contactsShown || 0) + 1;
+  if (state.frame === k) { drawContacts(k); dirty = true; }
 }
 
 function updateColourBar(mode) {
@@ -366,16 +382,7 @@ $("play").addEventListener("click", () => {
 $("slider").addEventListener("input", (e) => setFrame(+e.target.value));
 $("colour").addEventListener("change", () => draw(state.frame));
 $("joints").addEventListener("change", (e) => { if (g) { g.joints.visible = e.target.checked; dirty = true; } });
-$("contacts").addEventListener("change", async (e) => {
-  if (e.target.checked && g && !g.contactOffsets) await loadContacts();
-  draw(state.frame);
-});
-
-async function loadContacts() {
-  const { arrays } = await getFrames({ start: 0, stop: state.frameCount, geometry: false, contacts: true });
-  g.contactOffsets = arrays.contact_offsets; g.contactPoints = arrays.contact_point;
-  g.contactModes = arrays.contact_mode;
-}
+$("contacts").addEventListener("change", () => { if (g) draw(state.frame); });
 
 function loop(now) {
   requestAnimationFrame(loop);
@@ -402,18 +409,11 @@ async function follow() {
         if (!g) continue;
       }
       const job = await jobStatus();
-      const { head, arrays } = await getFrames({ start: g.disp.length, geometry: false,
-                                                 contacts: !!g.contactOffsets });
-      if (head.count) {
-        if (g.contactOffsets) {
-          const base = g.contactOffsets[g.contactOffsets.length - 1];
-          const offs = Array.from(arrays.contact_offsets.subarray(1), (o) => o + base);
-          g.contactOffsets = Uint32Array.from([...g.contactOffsets, ...offs]);
-          g.contactPoints = Float32Array.from([...g.contactPoints, ...arrays.contact_point]);
-          g.contactModes = Int8Array.from([...g.contactModes, ...arrays.contact_mode]);
-        }
-        appendMotion(head, arrays);
-      }
+      // the next step at the chosen stride; a run that ended between two steps of the
+      // stride still shows its last one
+      const { head, arrays } = await getFrames({ start: Math.min(g.next, g.nSteps),
+                                                 stride: g.stride, geometry: false });
+      if (head.count) appendMotion(head, arrays);
       state.status = job === "running" || job === "accepted" ? "running" : `job ${job}`;
       updateLabel();
       if (state.status !== "running" && !head.count) return;
@@ -427,7 +427,7 @@ async function start() {
   const t0 = performance.now();
   let data;
   try {
-    data = await getFrames({ start: 0, geometry: true });
+    data = await getFrames({ start: 0, geometry: true });  // geometry and the first steps
   } catch (err) {
     state.status = err.status === 404 ? "waiting for the first step" : `error: ${err.message}`;
     state.error = err.status === 404 ? null : err.message;
@@ -442,7 +442,17 @@ async function start() {
   $("contacts").disabled = !head.contacts_recorded;
   $("joints").disabled = !(head.joints || []).length;
   resize();
-  appendMotion(head, arrays);
+  // every recorded step, or a stride that keeps the motion within the viewer's budget
+  const budget = Math.min(cfg.max_frames, Math.floor(cfg.max_bytes / (40 * Math.max(1, head.n_blocks))));
+  g.stride = Math.max(1, Math.ceil(head.n_steps / Math.max(1, budget)));
+  if (g.stride === 1) appendMotion(head, arrays);
+  let more = g.stride > 1 || head.next_start != null;
+  while (more) {
+    const part = await getFrames({ start: g.next, stride: g.stride, geometry: false });
+    appendMotion(part.head, part.arrays);
+    more = part.head.next_start != null && part.head.count > 0;
+  }
+  $("stride").textContent = g.stride > 1 ? `every ${g.stride}th recorded step` : "";
   setFrame(state.frameCount - 1);
   renderer.render(scene, camera);
   dirty = false;
