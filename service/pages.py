@@ -102,6 +102,9 @@ def viewer_html(job: JobRecord, root: str, poll_ms: int = 2000) -> str:
             '</option><option value="velocity">velocity</option><option value="block">block'
             "</option></select></label>"
             '<label><input id="contacts" type="checkbox"> contacts</label>'
+            '<span class="muted" title="contact modes"><span style="color:#8c8c8c">●</span>'
+            ' open <span style="color:#2666f2">●</span> locked '
+            '<span style="color:#f2731a">●</span> sliding</span>'
             '<label><input id="joints" type="checkbox"> joint planes</label>'
             '<label><input id="follow" type="checkbox" checked> follow</label>'
             '<label>fps <input id="fps" type="number" min="1" max="60" value="15" '
@@ -159,6 +162,12 @@ def _scene_section(scene: dict[str, Any]) -> str:
     if analysis:
         out.append("<h3>Analysis</h3>" + _table(analysis.items(), ["parameter", "value"]))
     return "".join(out)
+
+
+_LABELS = {"steps": "solver steps", "simulated_time": "simulated time (s)",
+           "wall_time": "wall time (s)", "penalty": "contact penalty (N/m)",
+           "max_penetration": "largest penetration (m)", "time_step_cuts": "time step cuts",
+           "relaxed_contacts": "relaxed contacts"}
 
 
 def _blocks_section(summary: dict[str, Any], meta: dict[str, Any]) -> str:
@@ -255,7 +264,7 @@ def report_html(job: JobRecord, root: str, job_dir: Path, scene_text: str,
         counts = (f"{len(summary.get('blocks') or [])} blocks"
                   + (f", {sum(map(bool, fixed))} fixed" if fixed else ""))
         s.append(f"<h2>Result</h2><p>{escape(counts)}</p>"
-                 + _table((k, summary[k]) for k in keys if k in summary))
+                 + _table((_LABELS.get(k, k), summary[k]) for k in keys if k in summary))
         s.append(_blocks_section(summary, result_meta))
     elif "blocks.json" in docs:
         blocks = docs["blocks.json"].get("blocks", [])

@@ -130,10 +130,11 @@ function build(head, a) {
     size: 6, sizeAttenuation: false, vertexColors: true }));
   contacts.visible = false;
   scene.add(contacts);
-  // camera: the bounding box seen from the south-west, above
-  const ext = head.extent, r = Math.max(1e-6, Math.hypot(...ext));
+  // camera: the bounding sphere (radius r) fills the view, seen from the south-west, above
+  const ext = head.extent, r = Math.max(1e-6, Math.hypot(...ext) / 2);
+  const dist = 1.05 * r / Math.sin(THREE.MathUtils.degToRad(camera.fov / 2));
   camera.near = r / 1000; camera.far = r * 100;
-  camera.position.set(-0.9 * r, -1.6 * r, 0.9 * r);
+  camera.position.set(-0.45, -0.8, 0.45).normalize().multiplyScalar(dist);
   controls.target.set(0, 0, 0);
   controls.update();
   g = { head, a, n, V, T, vblock, rel, pos, triPos, triCol, mesh, edges, joints, contacts,
@@ -163,8 +164,8 @@ function appendMotion(head, a) {
 }
 
 function blockColor(b, k, mode) {
-  if (g.head.fixed[b]) return [0.62, 0.62, 0.62];
   if (state.picked && state.picked.index === b) return [0.95, 0.25, 0.2];
+  if (g.head.fixed[b]) return [0.62, 0.62, 0.62];
   if (mode === "block") {
     const h = (b * 0.618033988749895) % 1;
     return new THREE.Color().setHSL(h, 0.55, 0.6).toArray();
