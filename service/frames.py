@@ -47,7 +47,9 @@ class Frames:
 def _triangles_and_edges(result: Result) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Fan triangles `(T, 3)` of all faces (global vertex ids), their block `(T,)` and the
     unique polygon edges `(E, 2)`."""
-    foff, conn, fboff = result._foff, result._fconn, result._fboff
+    mesh = result.surface()
+    foff, conn = mesh["face_offsets"], mesh["face_connectivity"]
+    fboff = mesh["face_block_offsets"]
     sizes = np.diff(foff)
     face_block = np.repeat(np.arange(result.n_blocks), np.diff(fboff))
     ntri = np.maximum(sizes - 2, 0)
@@ -102,7 +104,7 @@ def joint_planes(scene_json: str | None, origin: np.ndarray, extent: np.ndarray,
 
 def geometry(result: Result) -> tuple[dict[str, Any], dict[str, np.ndarray]]:
     """The header fields and arrays of the block geometry (drawn once)."""
-    x0 = result._x0
+    x0 = result.surface()["vertices"]
     lo = x0.min(axis=0) if len(x0) else np.zeros(3)
     hi = x0.max(axis=0) if len(x0) else np.zeros(3)
     origin = geometry_origin(result)
@@ -114,7 +116,7 @@ def geometry(result: Result) -> tuple[dict[str, Any], dict[str, np.ndarray]]:
             "joints": joint_planes(result.scene_json, origin, hi - lo)}
     arrays = {
         "vertices": (x0 - origin).astype("<f4"),
-        "vertex_offsets": result._voff.astype("<u4"),
+        "vertex_offsets": result.surface()["vertex_offsets"].astype("<u4"),
         "triangles": tris.astype("<u4"),
         "triangle_block": tri_block.astype("<u4"),
         "edges": edges.astype("<u4"),
@@ -151,11 +153,10 @@ def frames(result: Result, start: int = 0, stop: int | None = None, stride: int 
     limit = max(1, max_motion_bytes // per_frame)
     next_start = int(idx[limit]) if len(idx) > limit else None
     idx = idx[:limit]
-    f = result._file
     sel = slice(start, int(idx[-1]) + 1, stride) if len(idx) else slice(0, 0)
-    centroid = f["history/centroid"][sel]
-    affine = f["history/affine"][sel]
-    velocity = f["history/velocity"][sel][..., :3]
+    centroid = result.history("centroid", sel)
+    affine = result.history("affine", sel)
+    velocity = result.history("velocity", sel)[..., :3]
     out = Frames({"format": FORMAT, "format_version": FORMAT_VERSION,
                   "status": result.status, "n_blocks": result.n_blocks,
                   "n_steps": n, "start": start, "stop": end, "stride": stride,
@@ -173,14 +174,12 @@ def frames(result: Result, start: int = 0, stop: int | None = None, stride: int 
     out.arrays["rotation"] = _quaternions(affine).astype("<f4")
     out.arrays["velocity"] = velocity.astype("<f4")
     if contacts and result.contacts_recorded:
-        so = f["contacts/step_offsets"]
         offs, points, modes = [0], [], []
         for k in idx:
-            a, b = (int(x) for x in so[k: k + 2])
-            pts = (f["contacts/point_i"][a:b] + f["contacts/point_j"][a:b]) / 2 - origin
-            points.append(pts)
-            modes.append(f["contacts/mode"][a:b])
-            offs.append(offs[-1] + b - a)
+            c = result.contacts(int(k))
+            points.append((c["point_i"] + c["point_j"]) / 2 - origin)
+            modes.append(c["mode"])
+            offs.append(offs[-1] + len(c["mode"]))
         out.arrays["contact_offsets"] = np.asarray(offs, "<u4")
         out.arrays["contact_point"] = (np.concatenate(points) if points
                                        else np.zeros((0, 3))).astype("<f4")
@@ -191,7 +190,7 @@ def frames(result: Result, start: int = 0, stop: int | None = None, stride: int 
 
 def geometry_origin(result: Result) -> np.ndarray:
     """The origin the geometry's coordinates are relative to (centre of its bounding box)."""
-    x0 = result._x0
+    x0 = result.surface()["vertices"]
     return (x0.min(axis=0) + x0.max(axis=0)) / 2 if len(x0) else np.zeros(3)
 
 

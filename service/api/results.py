@@ -224,7 +224,7 @@ def report(job: JobRecord, settings: Settings, scene_text: str, root: str) -> st
         with open_result(d / RESULT_FILE) as r:
             meta = {"engine_version": r.engine_version,
                     "schema_version": r.schema_version or "–",
-                    "scene_sha256": _text(r._file["scene"].attrs.get("sha256", "–")),
+                    "scene_sha256": r.scene_sha256 or "–",
                     "fixed": r.fixed.tolist(), "volume": r.volume.tolist()}
     figures = {}
     fos = d / "fos.json"
@@ -247,6 +247,3 @@ def fos_figure(fos: Path) -> str:
             plot_fos_trials(doc.get("runs") or [], png, fs if isinstance(fs, float) else None)
     return "data:image/png;base64," + base64.b64encode(png.read_bytes()).decode()
 
-
-def _text(value: Any) -> str:
-    return value.decode("utf-8") if isinstance(value, bytes) else str(value)
