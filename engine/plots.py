@@ -266,10 +266,10 @@ def plot_all(result: Result | PathLike, out_dir: PathLike | None = None, *,
              steps: list[int] | None = None) -> list[Path]:
     """Every plot of a result file as PNGs in `out_dir` (default `<result stem>_plots/`).
 
-    `blocks`: names or indices of the blocks in the histories (default: the free blocks that
-    moved most, at most 8). `times` (s) and `steps` (solver steps): 3-D snapshots at the
-    recorded steps nearest those times and at those recorded steps, `snapshot_step<N>.png`
-    (default: `snapshot_initial.png` and `snapshot_final.png`).
+    `blocks`: names or indices of the blocks in the histories and displacement components
+    (default: the free blocks that moved most, at most 8). `times` (s) and `steps` (solver
+    steps): 3-D snapshots at the recorded steps nearest those times and at those recorded
+    steps, `snapshot_step<N>.png` (default: `snapshot_initial.png` and `snapshot_final.png`).
     """
     if not isinstance(result, Result):
         with open_result(result) as r:
