@@ -107,6 +107,7 @@ def viewer_html(job: JobRecord, root: str, poll_ms: int = 2000) -> str:
             '<span style="color:#f2731a">●</span> sliding</span>'
             '<label><input id="joints" type="checkbox"> joint planes</label>'
             '<label><input id="follow" type="checkbox" checked> follow</label>'
+            '<button id="save" title="download the view as PNG">Save image</button>'
             '<label>fps <input id="fps" type="number" min="1" max="60" value="15" '
             'style="width:3.5em"></label>'
             '<span id="stride" class="muted"></span><span id="status" class="muted"></span>'

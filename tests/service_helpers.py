@@ -216,10 +216,12 @@ class Server:
         self.stop()
 
 
-def synthetic_job(data_dir: Path, n_blocks: int = 1000, n_steps: int = 100) -> tuple[str, Path]:
+def synthetic_job(data_dir: Path, n_blocks: int = 1000, n_steps: int = 100,
+                  contacts: bool = True) -> tuple[str, Path]:
     """A successful simulation job of `n_blocks` moving cubes and `n_steps` recorded steps
-    (made-up frames of benchmarks.bench_results written by the engine's ResultWriter),
-    put straight into the job table of `data_dir`; `(job id, its result.h5)`."""
+    (made-up frames of benchmarks.bench_results, ~6 contacts per block unless not
+    `contacts`, written by the engine's ResultWriter), put straight into the job table of
+    `data_dir`; `(job id, its result.h5)`."""
     from benchmarks.bench_results import FrameSource, grid_model
     from engine.results import ResultWriter
     from service.backends.store import JobStore
@@ -234,7 +236,7 @@ def synthetic_job(data_dir: Path, n_blocks: int = 1000, n_steps: int = 100) -> t
     path.parent.mkdir(parents=True)
     model = grid_model(n_blocks)
     src = FrameSource(model)
-    w = ResultWriter(path)
+    w = ResultWriter(path, record_contacts=contacts)
     w.begin(model, '{"name": "synthetic"}')
     for k in range(n_steps):
         w.record(src.frame(k, 0.01 * k))

@@ -39,10 +39,10 @@ def served(tmp_path_factory: pytest.TempPathFactory) -> Iterator[tuple[Server, s
         pytest.skip("Debian's chromium is not installed (apt-get install chromium)")
     sync_api = pytest.importorskip("playwright.sync_api")
     data = tmp_path_factory.mktemp("viewer-browser") / "data"
-    big, _ = synthetic_job(data, n_blocks=1000, n_steps=100)
+    big, _ = synthetic_job(data, n_blocks=1000, n_steps=100, contacts=False)
     with Server(data) as server, sync_api.sync_playwright() as pw:
         with httpx.Client(base_url=server.url, timeout=30) as client:
-            r = client.post("/jobs", json=wedge_scene(0.3))
+            r = client.post("/jobs", json=wedge_scene(0.2))
             assert r.status_code == 201, r.text
             url = r.headers["Location"]
             assert wait_final(client, url, timeout=120)["status"] == "successful"
@@ -80,7 +80,7 @@ def test_wedge_viewer_draws_animates_and_picks(served: Any) -> None:
         st = page.evaluate("({n: polydda.blockCount, k: polydda.frame, m: polydda.frameCount,"
                            " lit: polydda.litPixels()})")
         assert st["n"] == 2  # the wedge and its base
-        assert st["m"] == 31 and st["k"] == 30  # step 0 and every 10th; opens at the end
+        assert st["m"] == 21 and st["k"] == 20  # step 0 and every 10th; opens at the end
         assert st["lit"] > 20_000  # pixels of the 1200x~700 canvas that are not background
         label = page.inner_text("#frame-label")
         page.focus("#slider")
@@ -103,11 +103,14 @@ def test_wedge_viewer_draws_animates_and_picks(served: Any) -> None:
         page.focus("#slider")
         page.keyboard.press("End")
         shot(page, "viewer.png")
+        with page.expect_download() as download:
+            page.click("#save")
+        assert download.value.suggested_filename.endswith("-step200.png")
         page.check("#contacts")  # contacts of every frame are fetched on demand
-        page.wait_for_function("polydda.frame === 30 && polydda.contactsShown >= 1",
+        page.wait_for_function("polydda.frame === 20 && polydda.contactsShown >= 1",
                                timeout=10_000)
         page.click("#play")
-        page.wait_for_function("polydda.frame >= 2 && polydda.frame < 30", timeout=10_000)
+        page.wait_for_function("polydda.frame >= 2 && polydda.frame < 20", timeout=10_000)
     finally:
         page.close()
     assert bad == []
@@ -124,6 +127,8 @@ def test_report_page_loads_with_its_plots(served: Any) -> None:
         text = page.inner_text("body")
         assert "J1" in text and "Versions and provenance" in text and "B2" in text
         shot(page, "report.png", full_page=True)
+        pdf = page.pdf(format="A4")  # what "Print / save as PDF" makes
+        assert pdf.startswith(b"%PDF") and len(pdf) > 50_000
     finally:
         page.close()
     assert bad == []
@@ -142,11 +147,11 @@ def test_thousand_blocks_open_in_under_3_s(served: Any) -> None:
               f"(script: frames fetched, decoded and drawn in {st['ms'] / 1000:.2f} s)")
         assert st["n"] == 1000 and st["m"] == 100 and st["lit"] > 20_000
         assert wall < OPEN_LIMIT_S
-        page.focus("#slider")
-        t1 = time.perf_counter()
-        page.keyboard.press("Home")
-        assert page.evaluate("polydda.frame") == 0
-        print(f"one frame change: {time.perf_counter() - t1:.3f} s")
+        ms = page.evaluate("(() => { const t = performance.now(); for (let k = 0; k < 10; k++)"
+                           " polydda.setFrame(k); polydda.litPixels();"
+                           " return (performance.now() - t) / 10; })()")
+        print(f"one frame (1,000 blocks moved, coloured and drawn): {ms:.0f} ms")
+        assert page.evaluate("polydda.frame") == 9
     finally:
         page.close()
     assert bad == []

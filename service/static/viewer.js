@@ -384,6 +384,13 @@ $("slider").addEventListener("input", (e) => setFrame(+e.target.value));
 $("colour").addEventListener("change", () => draw(state.frame));
 $("joints").addEventListener("change", (e) => { if (g) { g.joints.visible = e.target.checked; dirty = true; } });
 $("contacts").addEventListener("change", () => { if (g) draw(state.frame); });
+$("save").addEventListener("click", () => {
+  renderer.render(scene, camera);
+  const a = document.createElement("a");
+  a.href = renderer.domElement.toDataURL("image/png");
+  a.download = `polydda-${cfg.job.split("/").pop().slice(0, 8)}-step${g ? g.steps[state.frame] : 0}.png`;
+  a.click();
+});
 
 function loop(now) {
   requestAnimationFrame(loop);
