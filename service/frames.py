@@ -44,21 +44,78 @@ class Frames:
     arrays: dict[str, np.ndarray] = field(default_factory=dict)
 
 
+def ear_clip(points: np.ndarray) -> list[tuple[int, int, int]]:
+    """Triangles (indices into `points`, in the polygon's winding) of a simple planar
+    polygon `(k, 3)`, convex or not, by ear clipping."""
+    k = len(points)
+    n = np.cross(points, np.roll(points, -1, axis=0)).sum(axis=0)  # Newell normal
+    ax = int(np.argmax(np.abs(n)))
+    p = points[:, [(ax + 1) % 3, (ax + 2) % 3]].astype(float)
+    if n[ax] < 0:
+        p[:, 1] *= -1.0  # mirrored: counter-clockwise in this projection
+    scale = float(np.ptp(p, axis=0).max()) ** 2 or 1.0
+
+    def cross(o: np.ndarray, a: np.ndarray, b: np.ndarray) -> float:
+        return float((a[0] - o[0]) * (b[1] - o[1]) - (a[1] - o[1]) * (b[0] - o[0]))
+
+    idx = list(range(k))
+    tris: list[tuple[int, int, int]] = []
+    while len(idx) > 3:
+        for j in range(len(idx)):
+            a, b, c = idx[j - 1], idx[j], idx[(j + 1) % len(idx)]
+            if cross(p[a], p[b], p[c]) <= 1e-12 * scale:
+                continue  # a reflex or flat corner is no ear
+            if any(cross(p[a], p[b], p[q]) >= 0 and cross(p[b], p[c], p[q]) >= 0
+                   and cross(p[c], p[a], p[q]) >= 0 for q in idx if q not in (a, b, c)):
+                continue  # another vertex lies in the triangle
+            tris.append((a, b, c))
+            idx.pop(j)
+            break
+        else:  # degenerate (self-touching) polygon: fan what is left
+            tris += [(idx[0], idx[i], idx[i + 1]) for i in range(1, len(idx) - 1)]
+            return tris
+    tris.append((idx[0], idx[1], idx[2]))
+    return tris
+
+
 def _triangles_and_edges(result: Result) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Fan triangles `(T, 3)` of all faces (global vertex ids), their block `(T,)` and the
-    unique polygon edges `(E, 2)`."""
+    """Triangles `(T, 3)` of all faces (global vertex ids; convex faces as fans, the others
+    by ear clipping), their block `(T,)` and the unique polygon edges `(E, 2)`."""
     mesh = result.surface()
-    foff, conn = mesh["face_offsets"], mesh["face_connectivity"]
+    x, foff, conn = mesh["vertices"], mesh["face_offsets"], mesh["face_connectivity"]
     fboff = mesh["face_block_offsets"]
     sizes = np.diff(foff)
     face_block = np.repeat(np.arange(result.n_blocks), np.diff(fboff))
-    ntri = np.maximum(sizes - 2, 0)
+    face_of = np.repeat(np.arange(len(sizes)), sizes)
+    nxt = np.arange(len(conn)) + 1
+    nxt[foff[1:] - 1] = foff[:-1]  # each face's last vertex closes to its first
+    prv = np.arange(len(conn)) - 1
+    prv[foff[:-1]] = foff[1:] - 1
+    # non-convex faces: a corner that turns against the face's (Newell) normal
+    pts = x[conn]
+    normal = np.zeros((len(sizes), 3))
+    np.add.at(normal, face_of, np.cross(pts, pts[nxt]))
+    turn = np.einsum("ij,ij->i", np.cross(pts - pts[prv], pts[nxt] - pts), normal[face_of])
+    size2 = float(np.ptp(x, axis=0).max()) ** 2 if len(x) else 1.0
+    tol = 1e-9 * size2 * np.linalg.norm(normal, axis=1)[face_of]
+    concave = np.zeros(len(sizes), bool)
+    concave[face_of[turn < -tol]] = True
+    ntri = np.where(concave, 0, np.maximum(sizes - 2, 0))
     tri_face = np.repeat(np.arange(len(sizes)), ntri)
     k = np.arange(len(tri_face)) - (np.cumsum(ntri) - ntri)[tri_face]
     base = foff[:-1][tri_face]  # triangle k of face f: (v0, v[k+1], v[k+2])
     tris = np.stack([conn[base], conn[base + k + 1], conn[base + k + 2]], axis=1)
-    nxt = np.arange(len(conn)) + 1
-    nxt[foff[1:] - 1] = foff[:-1]  # each face's last vertex closes to its first
+    extra_tris, extra_face = [], []
+    for f in np.flatnonzero(concave):
+        ids = conn[foff[f]: foff[f + 1]]
+        for t in ear_clip(x[ids]):
+            extra_tris.append(ids[list(t)])
+            extra_face.append(f)
+    if extra_tris:
+        tris = np.concatenate([tris, np.array(extra_tris)])
+        tri_face = np.concatenate([tri_face, np.array(extra_face)])
+        order = np.argsort(tri_face, kind="stable")
+        tris, tri_face = tris[order], tri_face[order]
     edges = np.unique(np.sort(np.stack([conn, conn[nxt]], axis=1), axis=1), axis=0)
     return tris, face_block[tri_face], edges
 

@@ -252,3 +252,21 @@ def test_report_of_a_factor_of_safety_job(tmp_path: Path) -> None:
     assert "a warning of the build" in text and "Bisection history" in text
     assert text.count("<tr>") >= 4 and 'src="data:image/png;base64,' in text
     assert hashlib.sha256(json.dumps(scene).encode()).hexdigest() in text
+
+
+@pytest.mark.parametrize("turn", [0, 1, 2])
+@pytest.mark.parametrize("reverse", [False, True])
+def test_ear_clip_of_a_non_convex_face(turn: int, reverse: bool) -> None:
+    """An L-shaped face (a fan from a corner would cover its notch) in each axis plane and
+    both windings: triangles that tile it, wound like it."""
+    from service.frames import ear_clip
+
+    L = np.array([[0, 0, 0], [2, 0, 0], [2, 1, 0], [1, 1, 0], [1, 2, 0], [0, 2, 0]], float)
+    P = np.roll(L[::-1] if reverse else L, 2, axis=0)[:, [(turn + i) % 3 for i in range(3)]]
+    tris = np.array(ear_clip(P))
+    assert len(tris) == 4
+    normal = np.cross(P, np.roll(P, -1, axis=0)).sum(axis=0)
+    t = np.cross(P[tris[:, 1]] - P[tris[:, 0]], P[tris[:, 2]] - P[tris[:, 0]])
+    assert np.all(t @ normal > 0)  # same winding as the face
+    assert np.linalg.norm(t, axis=1).sum() / 2 == pytest.approx(3.0)  # the L's area, once
+    assert ear_clip(P[:4][[0, 1, 2]]) == [(0, 1, 2)]

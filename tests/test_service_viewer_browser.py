@@ -175,3 +175,24 @@ def test_viewer_follows_a_running_job(served: Any) -> None:
             page.close()
             client.delete(url)
     assert bad == []
+
+
+def test_wedge_base_faces_are_triangulated_without_overlap(served: Any) -> None:
+    """The wedge's base block is concave, with non-convex faces: its triangles cover each
+    face exactly once (a fan would also cover the notch the wedge leaves)."""
+    import numpy as np
+
+    from engine.results import open_result
+    from service.frames import decode_binary
+
+    server, job, _, _ = served
+    p = decode_binary(httpx.get(f"{server.url}/jobs/{job}/results/frames?stop=1").content)
+    x, t = p.arrays["vertices"].astype(float), p.arrays["triangles"].astype(int)
+    area = np.linalg.norm(np.cross(x[t[:, 1]] - x[t[:, 0]], x[t[:, 2]] - x[t[:, 0]]),
+                          axis=1).sum() / 2
+    with open_result(server.data_dir / "jobs" / job / "result.h5") as r:
+        faces = [r.initial_vertices()[b][f] for b in range(r.n_blocks) for f in r.faces(b)]
+    exact = sum(np.linalg.norm(np.cross(f, np.roll(f, -1, axis=0)).sum(axis=0)) / 2
+                for f in faces)
+    assert any(len(f) > 4 for f in faces)
+    assert area == pytest.approx(exact, rel=1e-5)
