@@ -76,9 +76,16 @@ def viewer_html(job: JobRecord, root: str, poll_ms: int = 2000) -> str:
            "max_frames": 2000, "max_bytes": 48_000_000}
     importmap = {"imports": {"three": f"{root}/static/three/three.module.min.js",
                              "three/addons/": f"{root}/static/three/"}}
+    first = f"{cfg['frames']}?start=0&stop={cfg['max_frames']}&geometry=true"
     head = (f'<script type="importmap">{json.dumps(importmap)}</script>'
-            f'<script type="application/json" id="viewer-config">'
-            f"{escape(json.dumps(cfg), quote=False)}</script>")
+            + "".join(f'<link rel="modulepreload" href="{root}/static/{m}">' for m in (
+                "viewer.js", "three/three.module.min.js", "three/three.core.min.js",
+                "three/OrbitControls.js"))
+            + f'<script type="application/json" id="viewer-config">'
+            f"{escape(json.dumps({**cfg, 'first': first}), quote=False)}</script>"
+            # the first frames load while the scripts do
+            "<script>window.polyddaFirst = fetch(JSON.parse(document.getElementById("
+            "'viewer-config').textContent).first, {credentials: 'same-origin'});</script>")
     extra = (f"<span>job <span class='mono'>{escape(job.id[:8])}</span> · "
              f"<span id='title-blocks'></span></span>"
              + "".join(f'<a href="{escape(h)}">{t}</a>' for t, h in job_links(job, root)

@@ -24,9 +24,9 @@ function decode(buf) {
   return { head, arrays };
 }
 
-async function getFrames(params) {
+async function getFrames(params, early = null) {
   const url = `${cfg.frames}?${new URLSearchParams(params)}`;
-  const r = await fetch(url, { credentials: "same-origin" });
+  const r = await (early || fetch(url, { credentials: "same-origin" }));
   if (!r.ok) {
     let detail = r.statusText;
     try { detail = (await r.json()).detail; } catch (e) { /* not a problem document */ }
@@ -149,7 +149,7 @@ function appendMotion(head, a) {
   for (let i = 0; i < head.count; i++) g.index.push(head.start + i * head.stride);
   g.nSteps = head.n_steps;
   if (head.next_start != null) g.next = head.next_start;
-  else if (head.count) g.next = g.index[g.index.length - 1] + head.stride;
+  else if (head.count) g.next = g.index[g.index.length - 1] + g.stride;
   for (const [key, arr, w] of [["displacement", a.displacement, 3], ["velocity", a.velocity, 3]]) {
     let m = g.scale[key];
     for (let i = 0; i < arr.length; i += w) m = Math.max(m, Math.hypot(arr[i], arr[i + 1], arr[i + 2]));
@@ -159,7 +159,7 @@ function appendMotion(head, a) {
   const slider = $("slider");
   const atEnd = +slider.value >= +slider.max;
   slider.max = Math.max(0, state.frameCount - 1);
-  if (atEnd && $("follow").checked) setFrame(state.frameCount - 1);
+  if (atEnd && $("follow").checked && state.ready) setFrame(state.frameCount - 1);
   updateLabel();
 }
 
@@ -431,11 +431,28 @@ async function follow() {
   }
 }
 
+function every(head, a, stride) {
+  // frames 0, stride, 2 stride, ... of a payload fetched at stride 1
+  const keep = [];
+  for (let k = 0; k < head.count; k += stride) keep.push(k);
+  const rows = (arr) => {
+    const w = arr.length / Math.max(1, head.count), out = new Float32Array(keep.length * w);
+    keep.forEach((k, i) => out.set(arr.subarray(k * w, (k + 1) * w), i * w));
+    return out;
+  };
+  return [{ ...head, stride, count: keep.length, next_start: null,
+            steps: keep.map((k) => head.steps[k]), times: keep.map((k) => head.times[k]) },
+          { displacement: rows(a.displacement), rotation: rows(a.rotation), velocity: rows(a.velocity) }];
+}
+
 async function start() {
   const t0 = performance.now();
   let data;
   try {
-    data = await getFrames({ start: 0, geometry: true });  // geometry and the first steps
+    // the geometry and the first steps (all of them unless the payload would be too big)
+    const early = window.polyddaFirst;  // started by the page (cfg.first) before the scripts
+    window.polyddaFirst = null;
+    data = await getFrames({ start: 0, stop: cfg.max_frames, geometry: true }, early);
   } catch (err) {
     state.status = err.status === 404 ? "waiting for the first step" : `error: ${err.message}`;
     state.error = err.status === 404 ? null : err.message;
@@ -453,18 +470,18 @@ async function start() {
   // every recorded step, or a stride that keeps the motion within the viewer's budget
   const budget = Math.min(cfg.max_frames, Math.floor(cfg.max_bytes / (40 * Math.max(1, head.n_blocks))));
   g.stride = Math.max(1, Math.ceil(head.n_steps / Math.max(1, budget)));
-  if (g.stride === 1) appendMotion(head, arrays);
-  let more = g.stride > 1 || head.next_start != null;
-  while (more) {
+  appendMotion(...(g.stride === 1 ? [head, arrays] : every(head, arrays, g.stride)));
+  while (g.next < g.nSteps) {
     const part = await getFrames({ start: g.next, stride: g.stride, geometry: false });
+    if (!part.head.count) break;
     appendMotion(part.head, part.arrays);
-    more = part.head.next_start != null && part.head.count > 0;
   }
   $("stride").textContent = g.stride > 1 ? `every ${g.stride}th recorded step` : "";
   setFrame(state.frameCount - 1);
   renderer.render(scene, camera);
   dirty = false;
   state.loadMs = performance.now() - t0;
+  state.readyMs = performance.now();  // since the navigation started
   state.ready = true;
   $("load-time").textContent = `loaded in ${(state.loadMs / 1000).toFixed(2)} s`;
 }
