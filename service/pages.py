@@ -69,11 +69,12 @@ def home_html(root: str, jobs: Iterable[JobRecord] | None, total: int = 0) -> st
     return _page("PolyDDA jobs", root, _bar(root) + body)
 
 
-def viewer_html(job: JobRecord, root: str, poll_ms: int = 2000) -> str:
-    """The 3-D viewer of a job's result (loads service/static/viewer.js)."""
+def viewer_html(job: JobRecord, root: str, poll_ms: int = 2000, max_frames: int = 2000) -> str:
+    """The 3-D viewer of a job's result (loads service/static/viewer.js); it loads at most
+    `max_frames` steps (every k-th recorded step beyond)."""
     base = f"{root}/jobs/{job.id}"
     cfg = {"job": base, "frames": f"{base}/results/frames", "poll_ms": poll_ms,
-           "max_frames": 2000, "max_bytes": 48_000_000}
+           "max_frames": max_frames, "max_bytes": 48_000_000}
     importmap = {"imports": {"three": f"{root}/static/three/three.module.min.js",
                              "three/addons/": f"{root}/static/three/"}}
     first = f"{cfg['frames']}?start=0&stop={cfg['max_frames']}&geometry=true"

@@ -116,6 +116,22 @@ def test_wedge_viewer_draws_animates_and_picks(served: Any) -> None:
     assert bad == []
 
 
+def test_viewer_strides_long_results(served: Any) -> None:
+    _, job, _, _ = served
+    page, bad = open_page(served, f"/jobs/{job}/viewer?max_frames=5")
+    try:
+        page.wait_for_function("window.polydda && window.polydda.ready", timeout=20_000)
+        assert page.evaluate("polydda.frameCount") == 5  # 21 recorded steps, every 5th
+        assert "every 5th" in page.inner_text("#stride")
+        assert "step 200 " in page.inner_text("#frame-label")
+        page.focus("#slider")
+        page.keyboard.press("ArrowLeft")
+        assert "step 150 " in page.inner_text("#frame-label")
+    finally:
+        page.close()
+    assert bad == []
+
+
 def test_report_page_loads_with_its_plots(served: Any) -> None:
     _, job, _, _ = served
     page, bad = open_page(served, f"/jobs/{job}/report")

@@ -313,11 +313,14 @@ _HTML = {200: {"content": {"text/html": {"schema": {"type": "string"}}}}}
             summary="3-D viewer of the job's blocks over the recorded steps (follows a "
                     "running job)", operation_id="jobViewer",
             responses={**_HTML, **problem_responses(401, 404)})
-def job_viewer(job: JobDep, root: RootDep) -> HTMLResponse:
+def job_viewer(job: JobDep, root: RootDep,
+               max_frames: Annotated[int, Query(ge=2, le=100_000, description=(
+                   "steps loaded at most: every k-th recorded step beyond"))] = 2000,
+               ) -> HTMLResponse:
     if RESULT_FILE not in PROCESSES[job.process].artifacts:
         raise Problem(404, "no-such-result", "No viewer",
                       f"job {job.id} is a {job.process} job: it records no steps to view")
-    return HTMLResponse(pages.viewer_html(job, root))
+    return HTMLResponse(pages.viewer_html(job, root, max_frames=max_frames))
 
 
 @router.get("/jobs/{job_id}/report", tags=["pages"], response_class=HTMLResponse,
