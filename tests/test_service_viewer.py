@@ -195,6 +195,10 @@ def test_viewer_and_report_pages_use_only_local_assets(cube_job: Any) -> None:
     c, url, h5 = cube_job
     viewer = c.get(url + "/viewer")
     assert viewer.status_code == 200 and viewer.headers["content-type"].startswith("text/html")
+    assert '"max_frames": 2000' in viewer.text
+    assert '"max_frames": 7' in c.get(url + "/viewer?max_frames=7").text
+    bad = c.get(url + "/viewer?max_frames=1")
+    assert bad.status_code == 422 and bad.headers["content-type"] == PROBLEM
     refs = re.findall(r'(?:src|href)="([^"]+)"', viewer.text) + re.findall(
         r'"(/static/[^"]+)"', viewer.text)
     assert "https://" not in viewer.text and "http://" not in viewer.text
