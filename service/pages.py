@@ -69,6 +69,12 @@ def home_html(root: str, jobs: Iterable[JobRecord] | None, total: int = 0) -> st
     return _page("PolyDDA jobs", root, _bar(root) + body)
 
 
+def _script_json(value: Any) -> str:
+    """JSON to put inside a <script> element (no `<`, `>` or `&` that HTML would read)."""
+    return (json.dumps(value).replace("<", "\\u003c").replace(">", "\\u003e")
+            .replace("&", "\\u0026"))
+
+
 def viewer_html(job: JobRecord, root: str, poll_ms: int = 2000, max_frames: int = 2000) -> str:
     """The 3-D viewer of a job's result (loads service/static/viewer.js); it loads at most
     `max_frames` steps (every k-th recorded step beyond)."""
@@ -78,12 +84,12 @@ def viewer_html(job: JobRecord, root: str, poll_ms: int = 2000, max_frames: int 
     importmap = {"imports": {"three": f"{root}/static/three/three.module.min.js",
                              "three/addons/": f"{root}/static/three/"}}
     first = f"{cfg['frames']}?start=0&stop={cfg['max_frames']}&geometry=true"
-    head = (f'<script type="importmap">{json.dumps(importmap)}</script>'
+    head = (f'<script type="importmap">{_script_json(importmap)}</script>'
             + "".join(f'<link rel="modulepreload" href="{root}/static/{m}">' for m in (
                 "viewer.js", "three/three.module.min.js", "three/three.core.min.js",
                 "three/OrbitControls.js"))
             + f'<script type="application/json" id="viewer-config">'
-            f"{escape(json.dumps({**cfg, 'first': first}), quote=False)}</script>"
+            f"{_script_json({**cfg, 'first': first})}</script>"
             # the first frames load while the scripts do
             "<script>window.polyddaFirst = fetch(JSON.parse(document.getElementById("
             "'viewer-config').textContent).first, {credentials: 'same-origin'});</script>")

@@ -195,8 +195,12 @@ def test_viewer_and_report_pages_use_only_local_assets(cube_job: Any) -> None:
     c, url, h5 = cube_job
     viewer = c.get(url + "/viewer")
     assert viewer.status_code == 200 and viewer.headers["content-type"].startswith("text/html")
-    assert '"max_frames": 2000' in viewer.text
-    assert '"max_frames": 7' in c.get(url + "/viewer?max_frames=7").text
+    cfg = json.loads(re.search(r'id="viewer-config">([^<]*)</script>', viewer.text)[1])
+    assert cfg["max_frames"] == 2000 and cfg["frames"] == url + "/results/frames"
+    seven = c.get(url + "/viewer?max_frames=7").text
+    cfg = json.loads(re.search(r'id="viewer-config">([^<]*)</script>', seven)[1])
+    first = c.get(cfg["first"])  # what the page fetches before its scripts load
+    assert first.status_code == 200 and decode_binary(first.content).header["count"] == 7
     bad = c.get(url + "/viewer?max_frames=1")
     assert bad.status_code == 422 and bad.headers["content-type"] == PROBLEM
     refs = re.findall(r'(?:src|href)="([^"]+)"', viewer.text) + re.findall(
