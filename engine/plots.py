@@ -30,6 +30,8 @@ ENERGY_LABELS = {
     "damping_dissipation": "dissipated by contact damping",
 }
 MAX_HISTORY_BLOCKS = 8
+#: snapshots name the free blocks when there are at most this many
+MAX_LABELS = 30
 
 
 def _save(fig: Figure, path: PathLike, dpi: int = 120) -> Path:
@@ -117,8 +119,64 @@ def plot_energy(result: Result | PathLike, path: PathLike) -> Path:
     ax.set_title(_title(result, "Energy balance"))
     ax.grid(True, alpha=0.3)
     ax_r.grid(True, alpha=0.3)
-    if ax.lines:
-        ax.legend(fontsize="small", loc="best")
+    if ax.lines:  # beside the axes: it hides no curve
+        ax.legend(fontsize="small", loc="upper left", bbox_to_anchor=(1.01, 1.0),
+                  borderaxespad=0.0)
+    return _save(fig, path)
+
+
+def trend_plunge(d: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Trend (° clockwise from North = +y) and plunge (° below horizontal) of vectors
+    `(..., 3)` (x East, y North, z up); NaN for zero vectors."""
+    d = np.asarray(d, float)
+    h = np.hypot(d[..., 0], d[..., 1])
+    zero = (h == 0) & (d[..., 2] == 0)
+    trend = np.where(zero, np.nan, np.degrees(np.arctan2(d[..., 0], d[..., 1])) % 360.0)
+    plunge = np.where(zero, np.nan, np.degrees(np.arctan2(-d[..., 2], h)))
+    return trend, plunge
+
+
+def plot_displacements(result: Result | PathLike, path: PathLike,
+                       blocks: list[str | int] | None = None) -> Path:
+    """Centroid displacement components u_x (East), u_y (North), u_z (up) vs time of some
+    blocks, and the direction of their final displacement (trend, plunge) on a polar plot
+    (lower hemisphere: centre = straight down)."""
+    if not isinstance(result, Result):
+        with open_result(result) as r:
+            return plot_displacements(r, path, blocks)
+    idx = default_blocks(result) if blocks is None else [result.block_index(b) for b in blocks]
+    fig = Figure(figsize=(11, 6.5), layout="constrained")
+    axes = fig.subplot_mosaic([["x", "dir"], ["y", "dir"], ["z", "dir"]],
+                              width_ratios=(1.6, 1.0), sharex=False,
+                              per_subplot_kw={"dir": {"projection": "polar"}})
+    polar = axes["dir"]
+    colours = [f"C{k % 10}" for k in range(len(idx))]
+    for c, i in zip(colours, idx, strict=True):
+        h = result.block_history(i)
+        label = result.block_names[i] or f"block {i}"
+        for j, key in enumerate("xyz"):
+            axes[key].plot(h["time"], h["displacement"][:, j], color=c, label=label)
+        d = h["displacement"][-1] if len(h["time"]) else np.zeros(3)
+        trend, plunge = trend_plunge(d)
+        if np.isfinite(trend):
+            polar.plot(np.radians(trend), 90.0 - plunge, "o", color=c,
+                       label=f"{label}: {np.linalg.norm(d):.3g} m, {trend:03.0f}/{plunge:.0f}")
+    for key, name in zip("xyz", ("u_x East", "u_y North", "u_z up"), strict=True):
+        axes[key].set_ylabel(f"{name} (m)")
+        axes[key].grid(True, alpha=0.3)
+        axes[key].axhline(0.0, color="grey", lw=0.5)
+    axes["z"].set_xlabel("time (s)")
+    axes["x"].set_title(_title(result, "Centroid displacement components"))
+    if polar.lines:  # below the polar plot: |u| and trend/plunge of each block
+        polar.legend(fontsize="small", loc="upper center", bbox_to_anchor=(0.5, -0.08),
+                     ncols=2, title="final |u|, trend/plunge (°)")
+    polar.set_theta_zero_location("N")
+    polar.set_theta_direction(-1)
+    polar.set_rlim(0.0, 180.0)
+    polar.set_rticks([30, 60, 90, 120, 150])
+    polar.set_yticklabels(["60° down", "30° down", "horizontal", "30° up", "60° up"],
+                          fontsize="x-small")
+    polar.set_title("final displacement: trend (° from N) / plunge", fontsize="medium")
     return _save(fig, path)
 
 
@@ -186,20 +244,28 @@ def plot_snapshot(result: Result | PathLike, step: int | None, path: PathLike) -
     else:
         k = result.resolve_step(step)
         xs, label = result.vertices(k), f"t = {result.times[k]:.4g} s (step {result.steps[k]})"
-    polys, values = [], []
+    polys, values, colours = [], [], []
+    initial = xs is x0
     for b, (x, x_0) in enumerate(zip(xs, x0, strict=True)):
         d = np.linalg.norm(x - x_0, axis=1)
         for face in result.faces(b):
             polys.append(x[face])
             values.append(float(d[face].mean()))
+            colours.append(b)
     vals = np.asarray(values)
-    vmax = float(vals.max()) if len(vals) and vals.max() > 0 else 1.0
-    norm = Normalize(vmin=0.0, vmax=vmax)
-    mappable = ScalarMappable(norm=norm, cmap="viridis")
     fig = Figure(figsize=(8, 7), layout="constrained")
     ax = fig.add_subplot(projection="3d")
-    coll = Poly3DCollection(polys, facecolors=mappable.to_rgba(vals), edgecolors="k",
-                            linewidths=0.3)
+    fixed = np.asarray(result.fixed, bool)
+    if initial:  # nothing moved yet: colour by block, fixed blocks grey
+        palette = [f"C{b % 10}" for b in range(result.n_blocks)]
+        faces = [("0.7" if fixed[b] else palette[b]) for b in colours]
+        mappable = None
+    else:  # the colour bar spans the displacements shown (max of the free blocks' faces)
+        vmax = float(vals.max()) if len(vals) and vals.max() > 0 else 1.0
+        mappable = ScalarMappable(norm=Normalize(vmin=0.0, vmax=vmax), cmap="viridis")
+        faces = [("0.7" if fixed[b] else mappable.to_rgba(v))
+                 for b, v in zip(colours, vals, strict=True)]
+    coll = Poly3DCollection(polys, facecolors=faces, edgecolors="k", linewidths=0.3)
     ax.add_collection3d(coll)
     pts = np.concatenate(xs) if xs else np.zeros((1, 3))
     lo, hi = pts.min(axis=0), pts.max(axis=0)
@@ -208,11 +274,18 @@ def plot_snapshot(result: Result | PathLike, step: int | None, path: PathLike) -
     ax.set_ylim(lo[1], lo[1] + span[1])
     ax.set_zlim(lo[2], lo[2] + span[2])
     ax.set_box_aspect(tuple(span / span.max()))
-    ax.set_xlabel("x (m)")
-    ax.set_ylabel("y (m)")
-    ax.set_zlabel("z (m)")
+    ax.set_xlabel("x East (m)")
+    ax.set_ylabel("y North (m)")
+    ax.set_zlabel("z up (m)")
     ax.set_title(_title(result, label))
-    fig.colorbar(mappable, ax=ax, shrink=0.6, label="displacement (m)")
+    free = np.flatnonzero(~fixed)
+    if len(free) <= MAX_LABELS:  # block names at their highest vertex
+        for b in free:
+            top = xs[b][np.argmax(xs[b][:, 2])]
+            ax.text(*top, f" {result.block_names[b] or b}", fontsize="small", zorder=10)
+    if mappable is not None:
+        fig.colorbar(mappable, ax=ax, shrink=0.6,
+                     label=f"displacement (m), 0 to {mappable.norm.vmax:.3g} m (fixed: grey)")
     return _save(fig, path)
 
 
@@ -246,10 +319,10 @@ def plot_all(result: Result | PathLike, out_dir: PathLike | None = None, *,
              steps: list[int] | None = None) -> list[Path]:
     """Every plot of a result file as PNGs in `out_dir` (default `<result stem>_plots/`).
 
-    `blocks`: names or indices of the blocks in the histories (default: the free blocks that
-    moved most, at most 8). `times` (s) and `steps` (solver steps): 3-D snapshots at the
-    recorded steps nearest those times and at those recorded steps, `snapshot_step<N>.png`
-    (default: `snapshot_initial.png` and `snapshot_final.png`).
+    `blocks`: names or indices of the blocks in the histories and displacement components
+    (default: the free blocks that moved most, at most 8). `times` (s) and `steps` (solver
+    steps): 3-D snapshots at the recorded steps nearest those times and at those recorded
+    steps, `snapshot_step<N>.png` (default: `snapshot_initial.png` and `snapshot_final.png`).
     """
     if not isinstance(result, Result):
         with open_result(result) as r:
@@ -264,7 +337,8 @@ def plot_all(result: Result | PathLike, out_dir: PathLike | None = None, *,
     picks = snapshot_steps(r, times, steps) if chosen else []
     if r.n_steps == 0:
         return [plot_snapshot(r, None, out / "snapshot_initial.png")]
-    paths = [plot_histories(r, out / "histories.png", blocks), plot_energy(r, out / "energy.png")]
+    paths = [plot_histories(r, out / "histories.png", blocks), plot_energy(r, out / "energy.png"),
+             plot_displacements(r, out / "displacements.png", blocks)]
     if r.bolts() is not None:
         paths.append(plot_bolts(r, out / "bolts.png"))
     if r.water_resultants() is not None:
@@ -274,3 +348,27 @@ def plot_all(result: Result | PathLike, out_dir: PathLike | None = None, *,
                         plot_snapshot(r, -1, out / "snapshot_final.png")]
     return paths + [plot_snapshot(r, k, out / f"snapshot_step{int(r.steps[k])}.png")
                     for k in picks]
+
+
+def plot_fos_trials(runs: list[dict], path: PathLike,
+                    factor_of_safety: float | None = None) -> Path:
+    """The strength-reduction bisection: each trial's reduction factor (held: circle,
+    failed: cross) and the factor of safety found."""
+    fig = Figure(figsize=(7, 3.6), layout="constrained")
+    ax = fig.add_subplot()
+    k = np.arange(1, len(runs) + 1)
+    f = np.array([float(r["factor"]) for r in runs]) if runs else np.zeros(0)
+    failed = np.array([bool(r["failed"]) for r in runs], bool)
+    ax.plot(k, f, color="0.6", lw=1)
+    ax.plot(k[~failed], f[~failed], "o", color="C2", label="holds")
+    ax.plot(k[failed], f[failed], "x", color="C3", ms=8, mew=2, label="fails")
+    if factor_of_safety is not None and np.isfinite(factor_of_safety):
+        ax.axhline(factor_of_safety, color="C0", ls="--", label=f"FS = {factor_of_safety:.4g}")
+    ax.set_xlabel("trial")
+    ax.set_ylabel("strength reduction factor")
+    ax.set_title("Factor of safety: bisection of the reduction factor")
+    ax.grid(True, alpha=0.3)
+    if len(k):
+        ax.set_xticks(k)
+        ax.legend(fontsize="small", loc="upper left", bbox_to_anchor=(1.01, 1.0))
+    return _save(fig, path)

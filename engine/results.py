@@ -913,6 +913,12 @@ class Result:
         return _text(g["json"][()]) if "json" in g else None
 
     @property
+    def scene_sha256(self) -> str | None:
+        """SHA-256 (hex) of the input scene JSON text (None if the run had none)."""
+        value = self._file["scene"].attrs.get("sha256")
+        return None if value is None else _text(value)
+
+    @property
     def contacts_recorded(self) -> bool:
         """Whether `/contacts` holds contact rows (`record_contacts` of the writer)."""
         return bool(self._file["contacts"].attrs["recorded"])
@@ -988,6 +994,24 @@ class Result:
     def centroids(self, step_index: int) -> np.ndarray:
         """Centroids `(n, 3)` of all blocks at a step."""
         return self._file["history/centroid"][self.resolve_step(step_index)]
+
+    def surface(self) -> dict[str, np.ndarray]:
+        """Initial surface mesh of all blocks as flat arrays (as in `/blocks`): `vertices
+        (V,3)`, `vertex_offsets (n+1,)`, `face_offsets (F+1,)`, `face_connectivity` (global
+        vertex ids), `face_block_offsets (n+1,)`."""
+        return {"vertices": self._x0, "vertex_offsets": self._voff,
+                "face_offsets": self._foff, "face_connectivity": self._fconn,
+                "face_block_offsets": self._fboff}
+
+    def history(self, name: str, steps: slice = slice(None)) -> np.ndarray:
+        """`/history/<name>` (centroid, rotation, affine, velocity, stress) of all blocks at
+        the complete steps `steps` (a slice of `0..n_steps`), `(k, n, ...)`."""
+        if name not in _HISTORY_SHAPES:
+            raise KeyError(f"no history {name!r} (known: {', '.join(_HISTORY_SHAPES)})")
+        a, b, stride = steps.indices(self.n_steps)
+        if b <= a:
+            return np.zeros((0, self.n_blocks, *_HISTORY_SHAPES[name]))
+        return self._file[f"history/{name}"][a:b:stride]
 
     def initial_vertices(self) -> list[np.ndarray]:
         """Initial surface vertices `(k_b, 3)` of each block."""

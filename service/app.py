@@ -13,17 +13,17 @@ import sys
 from collections.abc import AsyncIterator
 from contextlib import asynccontextmanager
 from pathlib import Path
-from typing import Any
+from typing import Any, Literal
 
-from fastapi import FastAPI
+from fastapi import FastAPI, Request
 from fastapi.middleware.cors import CORSMiddleware
 from fastapi.responses import HTMLResponse, JSONResponse, Response
 from fastapi.staticfiles import StaticFiles
 from starlette.concurrency import run_in_threadpool
 
-from service.api.dependencies import BackendDep, RateLimiter, RootDep, StoreDep
+from service.api.dependencies import BackendDep, RateLimiter, RootDep, StoreDep, _client
 from service.api.openapi import openapi_builder
-from service.api.problems import install_handlers
+from service.api.problems import Problem, install_handlers
 from service.api.routes import router
 from service.backends import make_backend
 from service.backends.store import JobStore
@@ -93,8 +93,15 @@ def create_app(settings: Settings | None = None, lock: DataDirLock | None = None
 def _service_routes(app: FastAPI, settings: Settings) -> None:
     """Landing page, conformance, health, metrics, docs: open without an API key."""
 
-    @app.get("/", tags=["service"], summary="Landing page", operation_id="landing")
-    def landing(root: RootDep) -> dict[str, Any]:
+    @app.get("/", tags=["service"], operation_id="landing", response_model=None,
+             summary="Landing page (JSON; a browser asking for text/html, or ?f=html, gets "
+                     "the home page listing its jobs)",
+             responses={200: {"content": {"application/json": {},
+                                          "text/html": {"schema": {"type": "string"}}}}})
+    def landing(request: Request, root: RootDep, store: StoreDep,
+                f: Literal["json", "html"] | None = None) -> dict[str, Any] | HTMLResponse:
+        if f == "html" or (f is None and "text/html" in request.headers.get("accept", "")):
+            return HTMLResponse(home_page(request, settings, store, root))
         return {"title": "PolyDDA", "description": app.description, "links": [
             {"href": f"{root}/openapi.json", "rel": "service-desc",
              "type": "application/vnd.oai.openapi+json;version=3.1"},
@@ -104,6 +111,8 @@ def _service_routes(app: FastAPI, settings: Settings) -> None:
             {"href": f"{root}/processes",
              "rel": "http://www.opengis.net/def/rel/ogc/1.0/processes"},
             {"href": f"{root}/jobs", "rel": "http://www.opengis.net/def/rel/ogc/1.0/job-list"},
+            {"href": f"{root}/?f=html", "rel": "alternate", "type": "text/html",
+             "title": "home page: your jobs with their viewers and reports"},
         ]}
 
     @app.get("/conformance", tags=["service"], summary="OGC conformance classes",
@@ -137,6 +146,20 @@ def _service_routes(app: FastAPI, settings: Settings) -> None:
     @app.get("/docs", include_in_schema=False)
     def docs(root: RootDep) -> HTMLResponse:
         return HTMLResponse(_DOCS_HTML.format(root=root))
+
+
+def home_page(request: Request, settings: Settings, store: JobStore, root: str) -> str:
+    """The home page HTML: the caller's newest jobs, or a key form when keys are needed."""
+    from service.pages import home_html
+
+    try:
+        client = _client(request, settings, request.headers.get("x-api-key"))
+    except Problem as exc:
+        if exc.status != 401:
+            raise
+        return home_html(root, None)
+    jobs, total = store.list((), None, 100, 0, client=None if client.admin else client.id)
+    return home_html(root, jobs, total)
 
 
 def serve(host: str = "127.0.0.1", port: int = 8000, settings: Settings | None = None) -> int:

@@ -336,7 +336,7 @@ def _listed(values: list[str] | None) -> list[str] | None:
 
 
 def cmd_plot(args: argparse.Namespace) -> int:
-    """PNG plots of a result file: histories, energy balance, snapshots."""
+    """PNG plots of a result file: histories, energy, displacement components, snapshots."""
     from engine.plots import plot_all, snapshot_steps  # matplotlib only when plotting
     from engine.results import open_result
 

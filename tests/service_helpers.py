@@ -214,3 +214,34 @@ class Server:
 
     def __exit__(self, *exc: object) -> None:
         self.stop()
+
+
+def synthetic_job(data_dir: Path, n_blocks: int = 1000, n_steps: int = 100,
+                  contacts: bool = True) -> tuple[str, Path]:
+    """A successful simulation job of `n_blocks` moving cubes and `n_steps` recorded steps
+    (made-up frames of benchmarks.bench_results, ~6 contacts per block unless not
+    `contacts`, written by the engine's ResultWriter), put straight into the job table of
+    `data_dir`; `(job id, its result.h5)`."""
+    from benchmarks.bench_results import FrameSource, grid_model
+    from engine.results import ResultWriter
+    from service.backends.store import JobStore
+    from service.settings import Settings
+
+    settings = Settings(data_dir=data_dir)
+    data_dir.mkdir(parents=True, exist_ok=True)
+    store = JobStore(settings.db_path)
+    job, _ = store.submit(process="simulation", scene='{"name": "synthetic"}',
+                          client="ip:127.0.0.1", quota=10**6)
+    path = settings.job_dir(job.id) / "result.h5"
+    path.parent.mkdir(parents=True)
+    model = grid_model(n_blocks)
+    src = FrameSource(model)
+    w = ResultWriter(path, record_contacts=contacts)
+    w.begin(model, '{"name": "synthetic"}')
+    for k in range(n_steps):
+        w.record(src.frame(k, 0.01 * k))
+    w.end("completed", "", {"steps": n_steps})
+    now = time.time()
+    store.update(job.id, status="successful", started=now, finished=now, progress=100.0,
+                 message=f"synthetic: {n_blocks} blocks, {n_steps} steps")
+    return job.id, path

@@ -259,20 +259,22 @@ def test_plot_chooses_blocks_and_snapshot_times(capsys: pytest.CaptureFixture[st
     write_run(result, n_steps=12)  # blocks base (fixed) and cube; steps 0, 10, ... 110
     code, out, err = run(capsys, "plot", str(result), "--out", str(tmp_path / "default"))
     assert code == 0, err
-    assert [Path(p).name for p in out.split()] == ["histories.png", "energy.png",
-                                                   "snapshot_initial.png", "snapshot_final.png"]
+    assert [Path(p).name for p in out.split()] == [
+        "histories.png", "energy.png", "displacements.png", "snapshot_initial.png",
+        "snapshot_final.png"]
     code, out, err = run(capsys, "plot", str(result), "--out", str(tmp_path / "chosen"),
                          "--blocks", "base,cube", "--time", "0.31", "--step", "50",
                          "--step", "110,30")
     assert code == 0, err
     paths = [Path(p) for p in out.split()]
-    assert [p.name for p in paths] == ["histories.png", "energy.png", "snapshot_step30.png",
-                                       "snapshot_step50.png", "snapshot_step110.png"]
+    assert [p.name for p in paths] == ["histories.png", "energy.png", "displacements.png",
+                                       "snapshot_step30.png", "snapshot_step50.png",
+                                       "snapshot_step110.png"]
     assert all(p.read_bytes()[:4] == b"\x89PNG" for p in paths)
     # the default histories show the free block only; base and cube is another plot
     assert paths[0].read_bytes() != (tmp_path / "default" / "histories.png").read_bytes()
     # step 110 is the last one: the same picture as the default final snapshot
-    assert paths[4].read_bytes() == (tmp_path / "default" / "snapshot_final.png").read_bytes()
+    assert paths[5].read_bytes() == (tmp_path / "default" / "snapshot_final.png").read_bytes()
 
     for args, message in [(["--blocks", "cube,rock"], "no block named 'rock' (blocks: base, cube)"),
                           (["--time", "5"], "time 5 s is outside the recorded times (0 to 1.1 s)"),

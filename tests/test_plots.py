@@ -14,9 +14,12 @@ pytest.importorskip("matplotlib")
 from engine.plots import (  # noqa: E402
     energy_residual,
     plot_all,
+    plot_displacements,
     plot_energy,
+    plot_fos_trials,
     plot_histories,
     plot_snapshot,
+    trend_plunge,
 )
 from engine.results import ResultWriter, open_result  # noqa: E402
 from engine.summary import format_summary, summarize  # noqa: E402
@@ -42,12 +45,12 @@ def result_file(tmp_path_factory: pytest.TempPathFactory) -> Path:
 
 def test_plot_all_makes_pngs(result_file: Path, tmp_path: Path) -> None:
     paths = plot_all(result_file, tmp_path / "out")
-    assert [p.name for p in paths] == ["histories.png", "energy.png", "snapshot_initial.png",
-                                       "snapshot_final.png"]
+    assert [p.name for p in paths] == ["histories.png", "energy.png", "displacements.png",
+                                       "snapshot_initial.png", "snapshot_final.png"]
     for p in paths:
         assert_png(p)
     # the snapshot moves with the block: first and last images differ
-    assert paths[2].read_bytes() != paths[3].read_bytes()
+    assert paths[3].read_bytes() != paths[4].read_bytes()
 
 
 def test_plot_all_default_dir(tmp_path: Path) -> None:
@@ -65,6 +68,22 @@ def test_individual_plots(result_file: Path, tmp_path: Path) -> None:
         with pytest.raises(IndexError):
             plot_snapshot(r, 99, tmp_path / "bad.png")
     assert_png(plot_energy(result_file, tmp_path / "e2.png"))
+
+
+def test_displacement_and_fos_plots(result_file: Path, tmp_path: Path) -> None:
+    with open_result(result_file) as r:
+        assert_png(plot_displacements(r, tmp_path / "d.png", blocks=["cube", "base"]))
+    runs = [{"factor": 1.0, "failed": False}, {"factor": 2.0, "failed": True},
+            {"factor": 1.5, "failed": False}]
+    assert_png(plot_fos_trials(runs, tmp_path / "fos.png", 1.5))
+    assert_png(plot_fos_trials([], tmp_path / "none.png", None), min_bytes=2_000)
+
+
+def test_trend_and_plunge_of_displacements() -> None:
+    trend, plunge = trend_plunge(np.array([[1.0, 0, 0], [0, -1, -1], [0, 0, 0], [0, 0, 2]]))
+    np.testing.assert_allclose(trend[:2], [90.0, 180.0])
+    np.testing.assert_allclose(plunge[[0, 1, 3]], [0.0, 45.0, -90.0])
+    assert np.isnan(trend[2]) and np.isnan(plunge[2])
 
 
 def test_energy_residual_matches_balance() -> None:

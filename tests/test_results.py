@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import hashlib
 import json
 import os
 import signal
@@ -485,3 +486,20 @@ def test_large_steps_compressed_by_the_writer_read_back_exactly(tmp_path: Path,
     assert reader.GetNumberOfSteps() == 7
     pts = vtk_to_numpy(out.GetPoints().GetData())
     assert np.abs(pts - last).max() < 1e-12
+
+
+def test_surface_history_and_scene_hash(tmp_path: Path) -> None:
+    path = tmp_path / "run.h5"
+    write_run(path, n_steps=12)
+    with open_result(path) as r:
+        mesh = r.surface()
+        assert mesh["vertices"].shape == (16, 3) and mesh["vertex_offsets"].tolist() == [0, 8, 16]
+        assert mesh["face_block_offsets"].tolist() == [0, 6, 12]
+        np.testing.assert_array_equal(r.history("centroid", slice(2, 9, 3)),
+                                      [r.centroids(k) for k in (2, 5, 8)])
+        assert r.history("affine").shape == (12, 2, 3, 3)
+        assert r.history("velocity", slice(20, 30)).shape == (0, 2, 12)
+        with pytest.raises(KeyError):
+            r.history("nope")
+        text = json.dumps({"schema_version": "1.0", "blocks": []})
+        assert r.scene_sha256 == hashlib.sha256(text.encode()).hexdigest()

@@ -88,14 +88,22 @@ def _matches(key: str, keys: frozenset[str]) -> bool:
     return any(hmac.compare_digest(key.encode(), k.encode()) for k in keys)
 
 
+#: the cookie a browser keeps the API key in (set by the home page; GET requests only)
+KEY_COOKIE = "polydda_key"
+
+
 def _client(request: Request, settings: SettingsDep,
             key: Annotated[str | None, Security(api_key_header)] = None) -> Client:
-    """Who is asking (a valid key is required when keys are configured); rate-limited."""
+    """Who is asking (a valid key is required when keys are configured: the X-API-Key
+    header, or for GET requests the browser's key cookie); rate-limited."""
+    if key is None and request.method in ("GET", "HEAD"):
+        key = request.cookies.get(KEY_COOKIE)
     if settings.keys_required:
         admin = key is not None and _matches(key, settings.admin_keys)
         if key is None or not (admin or _matches(key, settings.api_keys)):
             raise Problem(401, "unauthorized", "API key missing or wrong",
-                          "send a valid key in the X-API-Key header",
+                          "send a valid key in the X-API-Key header (in a browser: enter it "
+                          "on the home page)",
                           headers={"WWW-Authenticate": 'ApiKey header="X-API-Key"'})
         client = Client("key:" + hashlib.sha256(key.encode()).hexdigest()[:16], admin)
     else:

@@ -9,7 +9,7 @@ from typing import Any, Literal
 from pydantic import BaseModel, Field
 
 from service.backends.store import JobRecord
-from service.processes import PROCESSES
+from service.processes import PROCESSES, RESULT_FILE
 
 Status = Literal["accepted", "running", "successful", "failed", "dismissed"]
 FILE_TYPES = {".h5": "application/x-hdf5", ".json": "application/json"}
@@ -67,10 +67,15 @@ def status_doc(job: JobRecord, root: str = "") -> dict[str, Any]:
     links = [{"href": href, "rel": "self", "type": "application/json"},
              {"href": f"{href}/events", "rel": "monitor", "type": "text/event-stream",
               "title": "progress as server-sent events"}]
+    if RESULT_FILE in PROCESSES[job.process].artifacts:
+        links.append({"href": f"{href}/viewer", "rel": "related", "type": "text/html",
+                      "title": "3-D viewer (follows the run)"})
     if job.is_final:
-        links.append({"href": f"{href}/results",
-                      "rel": "http://www.opengis.net/def/rel/ogc/1.0/results",
-                      "type": "application/json"})
+        links += [{"href": f"{href}/results",
+                   "rel": "http://www.opengis.net/def/rel/ogc/1.0/results",
+                   "type": "application/json"},
+                  {"href": f"{href}/report", "rel": "describedby", "type": "text/html",
+                   "title": "printable report"}]
     return {
         "jobID": job.id, "processID": job.process, "type": "process", "status": job.status,
         "message": job.message, "error_kind": job.error_kind,

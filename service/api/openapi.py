@@ -21,6 +21,9 @@ JOB_LINKS = {
     "GetResults": ("getResults", "the job's results document (when it has ended)"),
     "ListPlots": ("listPlots", "the plots of a simulation's result"),
     "GetContacts": ("getContacts", "the contacts of a simulation's last recorded step"),
+    "GetFrames": ("getFrames", "the block motion of a simulation for the viewer (also while "
+                               "it runs)"),
+    "JobViewer": ("jobViewer", "the 3-D viewer of a simulation (HTML)"),
     "DismissJob": ("dismissJob", "cancel the job, or remove it when it has ended"),
 }
 

@@ -1,5 +1,6 @@
 """A finished job's results: the results document, its files (a killed run's HDF5 served as
-a recovered copy any HDF5 reader opens), plots made on demand, contacts of a step."""
+a recovered copy any HDF5 reader opens), plots made on demand, contacts of a step; and block
+motion as frames for the viewer (also while the job runs)."""
 
 from __future__ import annotations
 
@@ -15,6 +16,9 @@ from service.api.models import FILE_TYPES
 from service.api.problems import Problem
 from service.backends.store import ACTIVE, SUCCESSFUL, JobRecord
 from service.documents import NotRecorded, result_contacts_document
+from service.frames import Frames, RangeError
+from service.frames import frames as make_frames
+from service.pages import report_html
 from service.processes import PROCESSES, RESULT_FILE
 from service.settings import Settings
 
@@ -119,10 +123,14 @@ def results_document(job: JobRecord, settings: Settings, root: str) -> dict[str,
                              "into a file any HDF5 reader opens)")
         links.append(link)
     if RESULT_FILE in files:
-        links += [{"href": f"{base}/plots", "rel": "related", "type": "application/json",
+        links += [{"href": f"{root}/jobs/{job.id}/viewer", "rel": "related",
+                   "type": "text/html", "title": "3-D viewer"},
+                  {"href": f"{base}/plots", "rel": "related", "type": "application/json",
                    "title": "PNG plots (made on first request)"},
                   {"href": f"{base}/contacts?format=csv", "rel": "related", "type": "text/csv",
                    "title": "contacts of the last recorded step (?step=N for another)"}]
+    links.append({"href": f"{root}/jobs/{job.id}/report", "rel": "describedby",
+                  "type": "text/html", "title": "printable report"})
     doc["links"] = links
     return doc
 
@@ -161,3 +169,81 @@ def contacts(job: JobRecord, settings: Settings, step: int | None) -> dict[str, 
                               errors=[{"loc": exc.loc, "msg": exc.message}]) from None
             raise Problem(404, "contacts-not-recorded", "Contacts not recorded",
                           exc.message) from None
+
+
+def live_result(job: JobRecord, settings: Settings) -> Path:
+    """The job's result.h5 as it is now: also while running (the steps written so far);
+    404 while it has none yet (Retry-After when it may come)."""
+    path = settings.job_dir(job.id) / RESULT_FILE
+    if RESULT_FILE not in PROCESSES[job.process].artifacts:
+        raise Problem(404, "no-such-result", "No result file",
+                      f"job {job.id} is a {job.process} job: it records no steps")
+    if not path.is_file():
+        if job.status in ACTIVE:
+            raise Problem(404, "result-not-ready", "Result not ready",
+                          f"job {job.id} is {job.status}; its first step is not written yet",
+                          headers={"Retry-After": "1"})
+        raise Problem(404, "no-such-result", "No result file",
+                      f"job {job.id} {job.status} without a result file: {job.message}")
+    return path
+
+
+def frames(job: JobRecord, settings: Settings, start: int, stop: int | None, stride: int,
+           with_geometry: bool, contacts: bool) -> Frames:
+    """service.frames.frames of the job's result (running or not); 422 for a bad range."""
+    from engine.results import open_result
+
+    path = live_result(job, settings)
+    try:
+        r = open_result(path)
+    except (OSError, ValueError) as exc:
+        log.warning("result of job %s could not be opened: %s", job.id, exc)
+        raise Problem(503 if job.status in ACTIVE else 404,
+                      "result-unreadable", "Result unreadable now",
+                      f"job {job.id}'s result.h5 could not be read: {exc}",
+                      headers={"Retry-After": "1"} if job.status in ACTIVE else None) from None
+    with r:
+        try:
+            return make_frames(r, start, stop, stride, with_geometry=with_geometry,
+                               contacts=contacts)
+        except RangeError as exc:
+            raise Problem(422, "invalid-range", "Steps not recorded", str(exc),
+                          errors=[{"loc": "query.start", "msg": str(exc)}]) from None
+
+
+def report(job: JobRecord, settings: Settings, scene_text: str, root: str) -> str:
+    """The printable HTML report of a finished job (plots made if not yet)."""
+    require_final(job)
+    d = settings.job_dir(job.id)
+    names: list[str] = []
+    meta: dict[str, Any] = {}
+    if (d / RESULT_FILE).is_file():
+        from engine.results import open_result
+
+        names = [p.name for p in plots(job, settings)]
+        with open_result(d / RESULT_FILE) as r:
+            meta = {"engine_version": r.engine_version,
+                    "schema_version": r.schema_version or "–",
+                    "scene_sha256": r.scene_sha256 or "–",
+                    "fixed": r.fixed.tolist(), "volume": r.volume.tolist()}
+    figures = {}
+    fos = d / "fos.json"
+    if fos.is_file():
+        figures["Bisection of the reduction factor"] = fos_figure(fos)
+    return report_html(job, root, d, scene_text, names, meta, figures)
+
+
+def fos_figure(fos: Path) -> str:
+    """The FoS trials plot of a fos.json (made beside it once) as a data: URI."""
+    import base64
+
+    png = fos.with_name("fos_trials.png")
+    with _lock(str(fos) + "/plot"):
+        if not png.is_file() or png.stat().st_mtime < fos.stat().st_mtime:
+            from engine.plots import plot_fos_trials
+
+            doc = json.loads(fos.read_text(encoding="utf-8"))
+            fs = doc.get("factor_of_safety")
+            plot_fos_trials(doc.get("runs") or [], png, fs if isinstance(fs, float) else None)
+    return "data:image/png;base64," + base64.b64encode(png.read_bytes()).decode()
+

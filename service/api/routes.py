@@ -12,12 +12,13 @@ from collections.abc import AsyncIterator
 from typing import Annotated, Any, Literal
 
 from fastapi import APIRouter, Depends, Query
-from fastapi.responses import FileResponse, JSONResponse, Response
+from fastapi.responses import FileResponse, HTMLResponse, JSONResponse, Response
 from starlette.concurrency import run_in_threadpool
 from starlette.datastructures import Headers
 from starlette.responses import MalformedRangeHeader, RangeNotSatisfiable, StreamingResponse
 from starlette.types import Receive, Scope, Send
 
+from service import pages
 from service.api import results, submission
 from service.api.dependencies import (
     BackendDep,
@@ -34,10 +35,13 @@ from service.api.models import FILE_TYPES, JobList, Status, StatusInfo, process_
 from service.api.problems import Problem, problem_responses
 from service.backends.store import ACTIVE, JobStore
 from service.documents import contacts_csv
+from service.frames import encode_binary, to_json
 from service.processes import PROCESS_IDS, PROCESSES, RESULT_FILE, ProcessId
 
 #: the largest offset SQLite takes (a signed 64-bit integer)
 MAX_OFFSET = 2**63 - 1
+#: bound of step indices in queries (a result never holds more steps)
+MAX_STEP = 2**31 - 1
 
 router = APIRouter(dependencies=[Depends(_client)])
 
@@ -256,6 +260,30 @@ def job_contacts(job: JobDep, settings: SettingsDep,
     return JSONResponse(doc)
 
 
+@router.get("/jobs/{job_id}/results/frames", tags=["results"], operation_id="getFrames",
+            summary="Block geometry and per-step block motion for the viewer (also while the "
+                    "job runs: the steps written so far)",
+            description="Recorded steps `start:stop:stride` (indices into the recorded "
+                        "steps; `stop` is clipped to the steps written so far). Binary: a "
+                        "uint32 header length, a JSON header, then 8-byte aligned arrays "
+                        "(see service/frames.py); `format=json` gives the same as JSON.",
+            responses={200: {"content": {"application/octet-stream": {},
+                                         "application/json": {}}},
+                       **problem_responses(401, 404, 422)})
+def job_frames(job: JobDep, settings: SettingsDep,
+               start: Annotated[int, Query(ge=0, le=MAX_STEP)] = 0,
+               stop: Annotated[int | None, Query(ge=0, le=MAX_STEP)] = None,
+               stride: Annotated[int, Query(ge=1, le=MAX_STEP)] = 1,
+               geometry: bool = True, contacts: bool = False,
+               format: Literal["binary", "json"] = "binary") -> Response:
+    payload = results.frames(job, settings, start, stop, stride, geometry, contacts)
+    headers = {"Cache-Control": "no-cache"}
+    if format == "json":
+        return JSONResponse(to_json(payload), headers=headers)
+    return Response(encode_binary(payload), media_type="application/octet-stream",
+                    headers=headers)
+
+
 @router.get("/jobs/{job_id}/results/{name}", tags=["results"], response_class=FileResponse,
             summary="Download a result file (Range requests work; the result.h5 of a killed "
                     "run is served as a recovered copy any HDF5 reader opens, marked "
@@ -274,3 +302,31 @@ def job_file(job: JobDep, name: str, settings: SettingsDep) -> FileResponse:
         path = results.artifact(job, settings, name)
     return ProblemFileResponse(path, media_type=FILE_TYPES[path.suffix], headers=headers,
                                filename=f"{job.id}-{name}" if path.suffix == ".h5" else None)
+
+
+# --------------------------------------------------------------------------- pages
+
+_HTML = {200: {"content": {"text/html": {"schema": {"type": "string"}}}}}
+
+
+@router.get("/jobs/{job_id}/viewer", tags=["pages"], response_class=HTMLResponse,
+            summary="3-D viewer of the job's blocks over the recorded steps (follows a "
+                    "running job)", operation_id="jobViewer",
+            responses={**_HTML, **problem_responses(401, 404)})
+def job_viewer(job: JobDep, root: RootDep,
+               max_frames: Annotated[int, Query(ge=2, le=100_000, description=(
+                   "steps loaded at most: every k-th recorded step beyond"))] = 2000,
+               ) -> HTMLResponse:
+    if RESULT_FILE not in PROCESSES[job.process].artifacts:
+        raise Problem(404, "no-such-result", "No viewer",
+                      f"job {job.id} is a {job.process} job: it records no steps to view")
+    return HTMLResponse(pages.viewer_html(job, root, max_frames=max_frames))
+
+
+@router.get("/jobs/{job_id}/report", tags=["pages"], response_class=HTMLResponse,
+            summary="Printable report of a finished job: scene, result, FS, plots, warnings, "
+                    "versions", operation_id="jobReport",
+            responses={**_HTML, **problem_responses(401, 404)})
+def job_report(job: JobDep, settings: SettingsDep, store: StoreDep,
+               root: RootDep) -> HTMLResponse:
+    return HTMLResponse(results.report(job, settings, store.scene(job.id), root))
