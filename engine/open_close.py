@@ -47,8 +47,6 @@ MAX_REOPENINGS = 2
 #: fraction of the step displacement limit is redone with a smaller time step (the
 #: friction would push the blocks and create energy; measured on the stability map's pile)
 FRICTION_REVERSAL_RATIO = 0.01
-#: a locked contact kept by the switch cap may end at most this fraction over its friction
-OVERLOAD_RTOL = 0.05
 #: a converged step whose penalty springs release more than this fraction of the blocks'
 #: kinetic energy (plus the round-off floor) that they never stored is redone with a
 #: smaller time step
@@ -135,7 +133,6 @@ class _Modes:
     reopenings: np.ndarray
     forced: np.ndarray  # capped sliding contacts locked
     released: np.ndarray  # capped closed contacts opened
-    slipped: np.ndarray  # capped locked contacts over their friction set sliding
     fric_prev: np.ndarray
     mode_changes: int = 0
     steady: int = 0
@@ -149,7 +146,6 @@ def _start(system: BlockSystem, start: StartModes, t: _Terms) -> _Modes:
                   offset=np.zeros((c, 3)), broken=start.broken,
                   switches=np.zeros(c, dtype=np.int64), reopenings=np.zeros(c, dtype=np.int64),
                   forced=np.zeros(c, dtype=bool), released=np.zeros(c, dtype=bool),
-                  slipped=np.zeros(c, dtype=bool),
                   fric_prev=np.zeros((c, 3)))
 
 
@@ -307,33 +303,6 @@ def lock_reversed_sliders(system: BlockSystem, t: _Terms, m: _Modes, cyc: _Cycle
     return True
 
 
-def slip_overloaded_locks(system: BlockSystem, t: _Terms, m: _Modes, cyc: _Cycle) -> bool:
-    """A locked contact kept by the switch cap must not end holding more shear than its
-    friction (tan φ N + c A): its spring would give back, as motion, energy that a slip
-    dissipates (a block landing on a slope stores shear in the impact; when the impact
-    force is gone the spring pushes the block down-dip). Set it sliding along its shear
-    force and iterate on (True); one that is over its friction again stops the step."""
-    locked = (m.mode == LOCKED) & (m.switches >= MAX_SHEAR_SWITCHES)
-    if not np.any(locked):
-        return False
-    r = t.shear0 + m.offset + cyc.dr
-    stretch = r - np.einsum("ij,ij->i", r, t.normal)[:, None] * t.normal
-    force = system.ks * np.linalg.norm(stretch, axis=1)
-    limit = t.tan_phi * np.maximum(cyc.fn, 0.0) + np.where(m.broken, 0.0, t.cohesion_force)
-    over = locked & (force > limit * (1.0 + OVERLOAD_RTOL) + system.kn * system.open_close_gap)
-    now = _rescue_once(m, over, m.slipped, SLIDING, lambda count: StepFailure(
-        f"open-close iteration did not settle: {count} locked contact(s) held more shear "
-        "than their friction", "overloaded_locks"))
-    if now is None:
-        return False
-    m.tangent = m.tangent.copy()
-    m.tangent[now] = stretch[now] / np.maximum(np.linalg.norm(stretch[now], axis=1),
-                                               1e-300)[:, None]
-    m.nstar = np.where(now, np.maximum(cyc.fn, 0.0), m.nstar)
-    m.broken = m.broken | now
-    return True
-
-
 def _converged(system: BlockSystem, state: State, contacts: ContactSet, t: _Terms,
                m: _Modes, cyc: _Cycle, mass: np.ndarray, iterations: int,
                dt: float) -> StepResult:
@@ -385,8 +354,6 @@ def open_close_iteration(system: BlockSystem, state: State, contacts: ContactSet
         if release_held_contacts(system, t, m, cyc):
             continue
         if lock_reversed_sliders(system, t, m, cyc, was_sliding):
-            continue
-        if slip_overloaded_locks(system, t, m, cyc):
             continue
         return _converged(system, state, contacts, t, m, cyc, mass, it, dt)
     raise StepFailure(f"open-close iteration did not converge ({m.mode_changes} mode "
