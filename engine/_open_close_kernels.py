@@ -21,12 +21,15 @@ def contact_loads(f: np.ndarray, dof_map: np.ndarray, bi: np.ndarray, bj: np.nda
                   ti: np.ndarray, tj: np.ndarray, normal: np.ndarray, d0: np.ndarray,
                   mode: np.ndarray, shear0: np.ndarray, offset: np.ndarray,
                   tangent: np.ndarray, nstar: np.ndarray, tan_phi: np.ndarray, kn: float,
-                  ks: float) -> tuple[np.ndarray, np.ndarray]:
+                  ks: float, cn: np.ndarray, dt: float) -> tuple[np.ndarray, np.ndarray]:
     """Add the contact forces of the cycle's modes to the load vector `f` (in place):
-    the normal spring's start-of-step force `−kn d0 n` of closed contacts, the locked
+    the normal spring's start-of-step force `−kn d0 n` of closed contacts (and the normal
+    dashpot's `−cn max(d0, 0) / Δt n`: a contact entering in the step damps from the entrance
+    on, like a spring of `cn / Δt` from zero gap), the locked
     shear spring's `−ks (I − n nᵀ)(shear0 + offset)` and the explicit friction
-    `−tan φ N* t` of sliding ones (eqs. 24, 29, 32; N* the contact's normal force of the
-    last cycle), as Tᵢᵀ F on block i and −Tⱼᵀ F on block j. Returns the friction
+    `−tan φ N* t` of sliding ones (eqs. 24, 29, 32; N* the contact's normal force, spring
+    and dashpot, of the last cycle), as Tᵢᵀ F on block i and −Tⱼᵀ F on block j (the
+    dashpots act through K: they rest at the start of the step). Returns the friction
     magnitudes `(c,)` and vectors `(c, 3)`."""
     c, _, d = ti.shape
     fric_mag = np.zeros(c)
@@ -37,7 +40,7 @@ def contact_loads(f: np.ndarray, dof_map: np.ndarray, bi: np.ndarray, bj: np.nda
         if m == OPEN:
             continue
         n0, n1, n2 = normal[k, 0], normal[k, 1], normal[k, 2]
-        fn = -kn * d0[k]
+        fn = -kn * d0[k] - cn[k] * max(d0[k], 0.0) / dt
         force[0], force[1], force[2] = fn * n0, fn * n1, fn * n2
         if m == LOCKED:
             r0 = shear0[k, 0] + offset[k, 0]
@@ -73,13 +76,17 @@ def update_modes(d0: np.ndarray, normal: np.ndarray, dr: np.ndarray, shear0: np.
                  broken: np.ndarray, reopenings: np.ndarray, switches: np.ndarray,
                  tan_phi: np.ndarray, tension_force: np.ndarray,
                  cohesion_force: np.ndarray, fric_mag: np.ndarray, fric_prev: np.ndarray,
-                 kn: float, ks: float, open_close_gap: float, max_reopenings: int,
+                 kn: float, ks: float, cn: np.ndarray, cs: np.ndarray, dt: float,
+                 open_close_gap: float, max_reopenings: int,
                  max_switches: int):  # noqa: ANN201 (a long tuple, see docstring)
     """Table 2 for every contact after a solve with relative displacements `dr (c, 3)`.
 
-    Contact forces are the penalty springs', compression positive (the contact dashpots act
-    after the step, :mod:`engine.damping`). A closed contact whose normal force is tensile
-    beyond its tensile strength opens (at most `max_reopenings` times per step) and its bond
+    Contact forces are the penalty springs' and the dashpots' (`cn`, `cs (c,)` N·s/m, on
+    the step's relative velocity; the normal dashpot from the entrance on for a contact
+    entering in the step), compression positive. A closed contact whose spring presses
+    while its normal dashpot pulls loses the dashpot for the rest of the step (`cn` set to
+    0 in place); one whose normal force, or whose spring across a gap, is tensile beyond
+    its tensile strength opens (at most `max_reopenings` times per step) and its bond
     breaks; a locked one whose shear force exceeds `tan φ N + c A` slides along that force,
     a sliding one whose slip reverses or that a locked spring could hold locks again,
     continuing from its friction force (at most `max_switches` locked <-> sliding changes
@@ -122,17 +129,26 @@ def update_modes(d0: np.ndarray, normal: np.ndarray, dr: np.ndarray, shear0: np.
         m = mode[k]
         closed = m != OPEN
         nm = m
-        normal_force = -kn * g1
+        # the dashpot works on the normal motion since the start, or since the entrance
+        normal_force = -kn * g1 - cn[k] * (g1 - min(d0[k], 0.0)) / dt
         allow = 0.0 if broken[k] else tension_force[k]
+        if closed and -kn * g1 >= -allow and normal_force < -allow and cn[k] > 0.0:
+            # the spring presses but its dashpot pulls (the blocks part): a dashpot holds
+            # nothing together, so the contact goes on without it for the rest of the step
+            cn[k] = 0.0
+            normal_force = -kn * g1
+            changed = True
         fn[k] = normal_force if closed else 0.0
-        if closed and normal_force < -allow and reopenings[k] < max_reopenings:
+        if (closed and (normal_force < -allow or -kn * g1 < -allow)
+                and reopenings[k] < max_reopenings):
             reopenings[k] += 1
             nm = OPEN
             broken[k] = True
         elif closed:
             limit = tan_phi[k] * max(normal_force, 0.0) + (0.0 if broken[k]
                                                            else cohesion_force[k])
-            f0, f1, f2 = ks * s0, ks * s1, ks * s2
+            cv = cs[k] / dt
+            f0, f1, f2 = ks * s0 + cv * t0, ks * s1 + cv * t1, ks * s2 + cv * t2
             ts = np.sqrt(f0 * f0 + f1 * f1 + f2 * f2)
             free = switches[k] < max_switches
             if m == LOCKED and free and ts > limit * (1 + 1e-9):
@@ -141,7 +157,8 @@ def update_modes(d0: np.ndarray, normal: np.ndarray, dr: np.ndarray, shear0: np.
                 new_tangent[k, 0], new_tangent[k, 1], new_tangent[k, 2] = (
                     f0 / ts, f1 / ts, f2 / ts)
                 broken[k] = True
-            elif m == SLIDING and free and (al < 0 or ks * al <= tan_phi[k] * normal_force):
+            elif m == SLIDING and free and (al < 0 or (ks + cv) * al
+                                            <= tan_phi[k] * normal_force):
                 nm = LOCKED
                 switches[k] += 1
                 # the re-locked spring continues from the friction force (no jump)
@@ -149,14 +166,14 @@ def update_modes(d0: np.ndarray, normal: np.ndarray, dr: np.ndarray, shear0: np.
                     offset[k, r] = (fric_mag[k] / ks * tangent[k, r] - dr_t[k, r]
                                     - shear0[k, r])
         elif g1 < -open_close_gap and normal_force > 0.0:
-            # penetrating and pressed: it closes at its first entrance
+            # penetrating and pressed (spring and dashpot): it closes at its first entrance
             # within the step, and the contact point is revised (eq. 47)
             tstar = d0[k] / (d0[k] - g1) if d0[k] > 0 else 0.0
             for r in range(3):
                 offset[k, r] = -tstar * dr_t[k, r]
             a0, a1, a2 = (1 - tstar) * t0, (1 - tstar) * t1, (1 - tstar) * t2
             an = np.sqrt(a0 * a0 + a1 * a1 + a2 * a2)
-            nm = SLIDING if ks * an > tan_phi[k] * normal_force else LOCKED
+            nm = SLIDING if (ks + cs[k] / dt) * an > tan_phi[k] * normal_force else LOCKED
             if an > 0:
                 new_tangent[k, 0], new_tangent[k, 1], new_tangent[k, 2] = (
                     a0 / an, a1 / an, a2 / an)
@@ -246,21 +263,24 @@ def initial_modes(bi: np.ndarray, bj: np.ndarray, point_i: np.ndarray,
 def step_results(d0: np.ndarray, d1: np.ndarray, normal: np.ndarray, shear0: np.ndarray,
                  offset: np.ndarray, dr: np.ndarray, dr_t: np.ndarray, mode: np.ndarray,
                  tangent: np.ndarray, fric: np.ndarray, fric_mag: np.ndarray, kn: float,
-                 ks: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, float, float]:
+                 ks: float, cn: np.ndarray, cs: np.ndarray, dt: float
+                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, float, float, float]:
     """Forces and energies of a converged step: `(normal_force (c,), shear_force (c, 3),
-    shear (c, 3), friction_work, spring_dissipation)`: normal force −kn d1 (compression
-    positive) of closed contacts; shear force on block i, −ks × the shear spring (locked)
-    minus the friction force; the
+    shear (c, 3), friction_work, spring_dissipation, damping_dissipation)`: normal force
+    −kn d1 − cn e/Δt (compression positive; e the normal motion since the start or since the
+    entrance) of closed contacts; shear force on block i,
+    −ks × the shear spring − cs × the slip rate (locked) minus the friction force; the
     shear spring stretch of locked contacts; the work of the friction forces over the
     slips; what the implicit penalty springs dissipated, ½ k Δ² of each spring's change
-    (β = ½, γ = 1) plus what springs that opened had stored (for a contact entering in the
-    step, its spring from the entrance)."""
+    (β = ½, γ = 1) plus what springs that opened had stored; and what the dashpots took,
+    ½ (c / Δt) (e² − a² + Δ²) with a, e their start and end stretch."""
     c = len(d0)
     nf = np.zeros(c)
     sf = np.zeros((c, 3))
     stretch = np.zeros((c, 3))
     fw = 0.0
     num = 0.0
+    damp = 0.0
     for k in range(c):
         m = mode[k]
         n0, n1, n2 = normal[k, 0], normal[k, 1], normal[k, 2]
@@ -277,9 +297,10 @@ def step_results(d0: np.ndarray, d1: np.ndarray, normal: np.ndarray, shear0: np.
         if m == SLIDING:  # a shear spring that let go gives up what it stored
             num += 0.5 * ks * ss0
         dd = d1[k] - d0[k]
-        a = max(d0[k], 0.0)  # a contact entering in the step: its spring from the entrance
-        nf[k] = -kn * d1[k]
+        a, e = max(d0[k], 0.0), d1[k] - min(d0[k], 0.0)  # the dashpot's start and end
+        nf[k] = -kn * d1[k] - cn[k] * e / dt
         num += 0.5 * kn * (dd * dd - a * a)
+        damp += 0.5 * cn[k] * (e * e - a * a + dd * dd) / dt
         if m == LOCKED:
             r0, r1, r2 = s00 + offset[k, 0], s01 + offset[k, 1], s02 + offset[k, 2]
             rn = r0 * n0 + r1 * n1 + r2 * n2
@@ -290,6 +311,7 @@ def step_results(d0: np.ndarray, d1: np.ndarray, normal: np.ndarray, shear0: np.
                 t2 - tn * n2
             slip2 = dr_t[k, 0] ** 2 + dr_t[k, 1] ** 2 + dr_t[k, 2] ** 2
             for j in range(3):
-                sf[k, j] -= ks * stretch[k, j]
+                sf[k, j] -= ks * stretch[k, j] + cs[k] * dr_t[k, j] / dt
             num += 0.5 * ks * (slip2 + ss0 - (a0 * a0 + a1 * a1 + a2 * a2))
-    return nf, sf, stretch, fw, num
+            damp += cs[k] * slip2 / dt
+    return nf, sf, stretch, fw, num, damp

@@ -100,6 +100,7 @@ def _work(system: BlockSystem, state: State, res: StepResult, dt: float) -> dict
             e["external_work"] += float(np.einsum("qi,qij,qj->", w.force, t, d[w.block]))
     e["friction_dissipation"] += res.friction_work
     e["numerical_dissipation"] += res.numerical_dissipation
+    e["damping_dissipation"] += res.damping_dissipation
     return e
 
 

@@ -27,6 +27,7 @@ from engine._open_close_kernels import contact_loads, step_results, update_modes
 from engine._open_close_kernels import initial_modes as _initial_modes
 from engine.block_terms import block_dissipation, block_terms, bolt_links, kinetic_energy
 from engine.contacts import LOCKED, OPEN, SLIDING, ContactSet
+from engine.motion import mass_properties
 from engine.solver import BlockJacobi, SolveError, make_solver
 from engine.state import State, StepResult
 from engine.status import StepFailure
@@ -99,6 +100,27 @@ class _Terms:
     tan_phi: np.ndarray
     cohesion_force: np.ndarray
     tension_force: np.ndarray
+    cn: np.ndarray
+    cs: np.ndarray
+
+
+def contact_damping(system: BlockSystem, state: State, contacts: ContactSet
+                    ) -> tuple[np.ndarray, np.ndarray]:
+    """Normal and shear dashpots `(cn, cs)` `(c,)` N·s/m of the step's contacts: the
+    fraction `contact_damping` of critical damping, 2 ζ √(k m), of each contact's spring
+    carrying its share of the block pair's reduced mass (a fixed block's mass is infinite;
+    a pair's contacts share its mass equally)."""
+    zeta = system.controls.contact_damping
+    c = len(contacts)
+    if zeta <= 0 or c == 0:
+        return np.zeros(c), np.zeros(c)
+    mass = np.where(system.fixed, np.inf, system.density * mass_properties(system, state)[0])
+    mi, mj = mass[contacts.block_i], mass[contacts.block_j]
+    reduced = 1.0 / (1.0 / mi + 1.0 / mj)
+    pair = contacts.block_i * system.n + contacts.block_j
+    _, inverse, count = np.unique(pair, return_inverse=True, return_counts=True)
+    share = reduced / count[inverse.ravel()]
+    return 2.0 * zeta * np.sqrt(system.kn * share), 2.0 * zeta * np.sqrt(system.ks * share)
 
 
 def _terms(system: BlockSystem, state: State, contacts: ContactSet, areas: np.ndarray,
@@ -106,6 +128,7 @@ def _terms(system: BlockSystem, state: State, contacts: ContactSet, areas: np.nd
     nd = system.ndof
     bi, bj = contacts.block_i, contacts.block_j
     jm = contacts.joint_material
+    cn, cs = contact_damping(system, state, contacts)
     return _Terms(
         bi=bi, bj=bj, normal=contacts.normal, d0=contacts.gap, shear0=shear0,
         ti=np.ascontiguousarray(asm.displacement_matrices(
@@ -113,13 +136,14 @@ def _terms(system: BlockSystem, state: State, contacts: ContactSet, areas: np.nd
         tj=np.ascontiguousarray(asm.displacement_matrices(
             contacts.point_j, state.centroid[bj])[:, :, :nd]),
         dmap=np.ascontiguousarray(system.dof_map[:, :nd]), tan_phi=system.tan_phi[jm],
-        cohesion_force=system.cohesion[jm] * areas, tension_force=system.tension[jm] * areas)
+        cohesion_force=system.cohesion[jm] * areas, tension_force=system.tension[jm] * areas,
+        cn=cn, cs=cs)
 
 
 @dataclass
 class _Modes:
     """What the iteration changes from cycle to cycle: modes, sliding directions, friction
-    normal forces N* (paper eq. 30: kn |d*|), revised contact
+    normal forces N* (paper eq. 30: kn |d*|, here with the dashpot's force), revised contact
     point shifts of contacts closing (eq. 47),
     broken bonds, the per-contact caps' counters, the contacts a rescue rule changed, the
     last friction forces, and the open/closed changes and quiet cycles so far."""
@@ -134,6 +158,7 @@ class _Modes:
     forced: np.ndarray  # capped sliding contacts locked
     released: np.ndarray  # capped closed contacts opened
     fric_prev: np.ndarray
+    cn: np.ndarray  # normal dashpots still acting (N·s/m; 0 once a dashpot let go)
     mode_changes: int = 0
     steady: int = 0
 
@@ -146,7 +171,7 @@ def _start(system: BlockSystem, start: StartModes, t: _Terms) -> _Modes:
                   offset=np.zeros((c, 3)), broken=start.broken,
                   switches=np.zeros(c, dtype=np.int64), reopenings=np.zeros(c, dtype=np.int64),
                   forced=np.zeros(c, dtype=bool), released=np.zeros(c, dtype=bool),
-                  fric_prev=np.zeros((c, 3)))
+                  fric_prev=np.zeros((c, 3)), cn=t.cn.copy())
 
 
 class _LinearSystem:
@@ -159,20 +184,23 @@ class _LinearSystem:
         self.system, self.kb, self.t, self.dt = system, kb, t, dt
         #: two-point springs between free blocks that are not contacts (rock bolts)
         self.links = links
+        #: stiffness of each contact's shear spring with its dashpot (N/m)
+        self.ks = system.ks + t.cs / dt
         self.plan: asm.SystemPlan | None = None
         self.solver = None
         self.key: tuple[bytes, bytes] | None = None
         self.jacobi = BlockJacobi()
         self.x: np.ndarray | None = None
 
-    def update(self, mode: np.ndarray) -> bool:
-        """Assemble and factorize K for `mode` unless it is the last one; whether it did."""
+    def update(self, mode: np.ndarray, cn: np.ndarray) -> bool:
+        """Assemble and factorize K for `mode` and the normal dashpots `cn` unless they are
+        the last ones; whether it did."""
         closed, locked = mode != OPEN, mode == LOCKED
-        key = (closed.tobytes(), locked.tobytes())
+        key = (closed.tobytes(), locked.tobytes(), (cn > 0).tobytes())
         if self.solver is not None and key == self.key:
             return False
         s, t = self.system, self.t
-        kn, ks = s.kn * closed, s.ks * locked
+        kn, ks = (s.kn + cn / self.dt) * closed, self.ks * locked
         if self.links is None:
             if self.plan is None:
                 self.plan = asm.plan_system(s.block_row, self.kb, t.bi, t.bj, t.ti, t.tj,
@@ -226,21 +254,21 @@ def _cycle(system: BlockSystem, state: State, t: _Terms, m: _Modes, lin: _Linear
            f_block: np.ndarray, dt: float, clock: float) -> tuple[_Cycle, float]:
     """Solve with the contact terms of the current modes, then Table 2 for every contact."""
     diag = state.diagnostics
-    if lin.update(m.mode):
+    if lin.update(m.mode, m.cn):
         clock = diag.tick("assembly", clock)
     # contact forces on block i (on j the opposite), as generalized loads
     f = f_block.copy()
     fric_mag, fric = contact_loads(f, t.dmap, t.bi, t.bj, t.ti, t.tj, t.normal, t.d0, m.mode,
                                    t.shear0, m.offset, m.tangent, m.nstar, t.tan_phi,
-                                   system.kn, system.ks)
+                                   system.kn, system.ks, m.cn, dt)
     clock = diag.tick("assembly", clock)
     x = lin.solve(f)
     clock = diag.tick("solve", clock)
     dr = relative_displacement(x, t.dmap, t.bi, t.bj, t.ti, t.tj)
     out = update_modes(t.d0, t.normal, dr, t.shear0, m.offset, m.mode, m.tangent, m.broken,
                        m.reopenings, m.switches, t.tan_phi, t.tension_force,
-                       t.cohesion_force, fric_mag, m.fric_prev, system.kn, system.ks,
-                       system.open_close_gap, MAX_REOPENINGS, MAX_SHEAR_SWITCHES)
+                       t.cohesion_force, fric_mag, m.fric_prev, system.kn, system.ks, m.cn,
+                       t.cs, dt, system.open_close_gap, MAX_REOPENINGS, MAX_SHEAR_SWITCHES)
     clock = diag.tick("open_close", clock)
     return _Cycle(x, fric_mag, fric, dr, *out), clock
 
@@ -273,8 +301,9 @@ def release_held_contacts(system: BlockSystem, t: _Terms, m: _Modes, cyc: _Cycle
     that would be a bond the joint does not have. Open them once more and iterate on (True);
     a contact held again after that stops the step (StepFailure)."""
     allow_tension = np.where(m.broken, 0.0, t.tension_force)
+    pull = np.minimum(cyc.fn, -system.kn * cyc.d1)  # the dashpot may not hold a gap shut
     held = (m.mode != OPEN) & (m.reopenings >= MAX_REOPENINGS) & (
-        cyc.fn < -allow_tension - system.kn * system.open_close_gap)
+        pull < -allow_tension - system.kn * system.open_close_gap)
     now = _rescue_once(m, held, m.released, OPEN, lambda count: StepFailure(
         f"open-close iteration did not settle: {count} contact(s) kept closing and opening",
         "held_contacts"))
@@ -309,9 +338,9 @@ def _converged(system: BlockSystem, state: State, contacts: ContactSet, t: _Term
     """The step's result from its last cycle; StepFailure when its implicit springs
     released energy they never stored (a spring re-locked with an offset from an earlier
     cycle of a fast step would accelerate the blocks: redo the step smaller)."""
-    nf, sf, shear1, fw, num = step_results(
+    nf, sf, shear1, fw, num, damp = step_results(
         t.d0, cyc.d1, t.normal, t.shear0, m.offset, cyc.dr, cyc.dr_t, m.mode, m.tangent,
-        cyc.fric, cyc.fric_mag, system.kn, system.ks)
+        cyc.fric, cyc.fric_mag, system.kn, system.ks, m.cn, t.cs, dt)
     d = np.zeros((system.n, 12))
     free = system.dof_map >= 0
     d[free] = cyc.x[system.dof_map[free]]
@@ -325,7 +354,7 @@ def _converged(system: BlockSystem, state: State, contacts: ContactSet, t: _Term
                                           tangent=m.tangent),
         gap1=cyc.d1, shear=shear1, slip=cyc.dr_t, normal_force=nf, shear_force=sf,
         friction_work=fw, iterations=iterations, mode_changes=m.mode_changes,
-        numerical_dissipation=num, broken=m.broken)
+        numerical_dissipation=num, damping_dissipation=damp, broken=m.broken)
 
 
 def open_close_iteration(system: BlockSystem, state: State, contacts: ContactSet,

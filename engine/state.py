@@ -153,6 +153,7 @@ class StepResult:
     iterations: int
     mode_changes: int = 0
     numerical_dissipation: float = 0.0
+    damping_dissipation: float = 0.0
     broken: np.ndarray | None = None
 
 

@@ -127,22 +127,24 @@ def _contact_case(c: int = 6, d: int = 6):
 
 
 def test_contact_loads_are_the_penalty_forces_of_each_mode() -> None:
-    """Closed: −kn d0 n; locked: minus the shear spring of shear0 + offset in the plane;
-    sliding: minus the friction tan φ N* along t; applied as Tᵢᵀ F and −Tⱼᵀ F."""
+    """Closed: −kn d0 n (and the dashpot −cn max(d0, 0)/Δt n of a contact entering in the
+    step); locked: minus the shear spring of shear0 + offset in the plane; sliding: minus the
+    friction tan φ N* along t; applied as Tᵢᵀ F and −Tⱼᵀ F."""
     n, d, bi, bj, dmap, ti, tj, normal, tangent = _contact_case()
     mode = np.array([OPEN, LOCKED, SLIDING, LOCKED, SLIDING, OPEN], np.int8)
     d0 = -1e-4 * RNG.random(6)
-    d0[3] = 2e-6  # a contact that enters within the step
+    d0[3] = 2e-6  # a contact that enters within the step: its dashpot starts at the gap
     shear0, offset = 1e-5 * RNG.normal(size=(6, 3)), 1e-6 * RNG.normal(size=(6, 3))
     nstar, tan_phi, kn, ks = 1e5 * RNG.random(6), np.full(6, 0.5), 1e9, 5e8
+    cn, dt = 1e6 * RNG.random(6), 1e-3
     f = np.zeros(n * d)
     fric_mag, fric = contact_loads(f, dmap, bi, bj, ti, tj, normal, d0, mode, shear0, offset,
-                                   tangent, nstar, tan_phi, kn, ks)
+                                   tangent, nstar, tan_phi, kn, ks, cn, dt)
     want = np.zeros(n * d)
     for k in range(6):
         if mode[k] == OPEN:
             continue
-        force = -kn * d0[k] * normal[k]
+        force = (-kn * d0[k] - cn[k] * max(d0[k], 0.0) / dt) * normal[k]
         if mode[k] == LOCKED:
             r = shear0[k] + offset[k]
             force -= ks * (r - (r @ normal[k]) * normal[k])
@@ -166,7 +168,7 @@ def test_update_modes_follows_table_2() -> None:
     z3, z = np.zeros((4, 3)), np.zeros(4)
     out = update_modes(d0, normal, dr, z3, z3.copy(), mode, tangent, np.zeros(4, bool),
                        np.zeros(4, np.int64), np.zeros(4, np.int64), np.full(4, 0.5), z, z,
-                       np.full(4, 5e3), z3, 1e9, 1e9, 1e-7, 2, 2)
+                       np.full(4, 5e3), z3, 1e9, 1e9, z.copy(), z.copy(), 1e-3, 1e-7, 2, 2)
     new_mode, nstar, d1, fn, changed = out[0], out[2], out[3], out[6], out[7]
     assert list(new_mode) == [OPEN, SLIDING, LOCKED, LOCKED]
     np.testing.assert_allclose(d1, d0 + dr[:, 2])
@@ -174,6 +176,22 @@ def test_update_modes_follows_table_2() -> None:
     np.testing.assert_allclose(fn[[1, 3]], -1e9 * d1[[1, 3]])
     np.testing.assert_allclose(nstar[[1, 3]], -1e9 * d1[[1, 3]])
     assert changed
+
+
+def test_a_parting_contact_loses_its_dashpot_not_its_spring() -> None:
+    """A closed contact whose spring still presses while the blocks part keeps its spring
+    (it stays closed) and drops the dashpot that would pull the blocks together."""
+    normal = np.array([[0.0, 0.0, 1.0]])
+    d0, dr = np.array([-2e-5]), np.array([[0.0, 0.0, 1e-5]])
+    z3, z = np.zeros((1, 3)), np.zeros(1)
+    cn = np.array([1e7])  # cn / Δt = 1e10 > kn: the dashpot alone would make it tensile
+    out = update_modes(d0, normal, dr, z3, z3.copy(), np.array([LOCKED], np.int8),
+                       np.array([[1.0, 0, 0]]), np.zeros(1, bool), np.zeros(1, np.int64),
+                       np.zeros(1, np.int64), np.full(1, 0.5), z, z, z.copy(), z3, 1e9, 1e9,
+                       cn, z.copy(), 1e-3, 0.0, 2, 2)
+    assert out[0][0] == LOCKED
+    assert cn[0] == 0.0
+    assert out[6][0] == pytest.approx(1e9 * 1e-5)
 
 
 def test_step_results_forces_and_dissipation() -> None:
@@ -184,14 +202,18 @@ def test_step_results_forces_and_dissipation() -> None:
     dr = np.array([[3e-6, 0.0, -1e-5]])
     dr_t = np.array([[3e-6, 0.0, 0.0]])
     z3 = np.zeros((1, 3))
-    nf, sf, stretch, fw, num = step_results(
+    cn, cs, dt = np.array([2e5]), np.array([1e5]), 1e-3
+    nf, sf, stretch, fw, num, damp = step_results(
         d0, d1, normal, z3, z3, dr, dr_t, np.array([LOCKED], np.int8), z3, z3, np.zeros(1),
-        1e9, 5e8)
-    assert nf[0] == pytest.approx(2e4)
+        1e9, 5e8, cn, cs, dt)
+    # spring + dashpot on the step's normal motion e = d1 − d0 (it was already closed)
+    assert nf[0] == pytest.approx(2e4 + 2e5 * 1e-5 / dt)
     np.testing.assert_allclose(stretch[0], [3e-6, 0, 0])
-    np.testing.assert_allclose(sf[0], [-5e8 * 3e-6, 0, 0])
+    np.testing.assert_allclose(sf[0], [-5e8 * 3e-6 - 1e5 * 3e-6 / dt, 0, 0])
     assert fw == 0.0
     assert num == pytest.approx(0.5 * 1e9 * 1e-10 + 0.5 * 5e8 * 9e-12)
+    # the dashpots take c/Δt × their motion²: ½ (c/Δt)(e² + Δ²) normal (a = 0), c/Δt s² shear
+    assert damp == pytest.approx(2e5 / dt * 1e-10 + 1e5 / dt * 9e-12)
 
 
 # --------------------------------------------------------------------------- solver kernels
@@ -273,8 +295,8 @@ def test_readme_architecture_names_what_the_code_has() -> None:
 
     readme = (ENGINE.parent / "README.md").read_text()
     block = readme.split("## Architecture", 1)[1].split("```")[1]
-    names = re.findall(r"\b(stepping|contact_step|open_close|motion|damping|energy|simulation|"
-                       r"output|results)"
+    names = re.findall(r"\b(stepping|contact_step|open_close|motion|energy|simulation|output|"
+                       r"results)"
                        r"\.([a-z_A-Z]+)", block)
     assert len(names) >= 9
     for module, attr in names:
@@ -283,7 +305,6 @@ def test_readme_architecture_names_what_the_code_has() -> None:
         (ENGINE / "simulation.py").read_text(),
         next(f for f in _functions(ENGINE / "simulation.py") if f.name == "step"))
     order = ["first_attempt(", "find_contacts(", "initial_modes(", "open_close_iteration(",
-             "stepping.check(", "advance(", "damp_contacts(", "energy.check_step(",
-             "stepping.cut("]
+             "stepping.check(", "advance(", "energy.check_step(", "stepping.cut("]
     positions = [step.index(name) for name in order]
     assert positions == sorted(positions)
