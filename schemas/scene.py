@@ -424,6 +424,17 @@ class AnalysisSpec(_Model):
         return 1.0 if self.mode == "dynamic" else 0.0
 
 
+class SlopeFaceSpec(_Model):
+    """The slope face for kinematic screening (`polydda kinematics`): its dip and dip
+    direction, and optionally one friction angle for every joint in the tests."""
+
+    dip: Annotated[float, Field(gt=0, le=90)] = Field(
+        description="degrees, more than 0 and at most 90 (vertical)")
+    dip_direction: DipDirection = Field(description="degrees clockwise from North")
+    friction_angle: FrictionAngle | None = Field(
+        None, description="degrees; default: each joint's own joint material")
+
+
 # --------------------------------------------------------------------------- scene
 
 DEFAULT_MATERIAL_NAME = "rock"
@@ -458,6 +469,8 @@ class Scene(_Model):
     boundary: BoundarySpec = Field(default_factory=BoundarySpec)
     gravity: Vec3 = Field(default_factory=lambda: [0.0, 0.0, -9.81], description="m/s²")
     analysis: AnalysisSpec = Field(default_factory=AnalysisSpec)
+    slope_face: SlopeFaceSpec | None = Field(
+        None, description="the slope face for kinematic screening (not used by runs)")
 
     @model_validator(mode="after")
     def _defaults(self) -> Scene:
