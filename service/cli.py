@@ -31,6 +31,9 @@ from service.documents import (
     blocks_document,
     fos_controls,
     fos_document,
+    kinematic_result,
+    kinematics_document,
+    kinematics_text,
     run_summary,
     scene_contacts_document,
     surface,
@@ -301,6 +304,27 @@ def cmd_fos(args: argparse.Namespace) -> int:
     return EXIT_OK if result.status == STATUS_COMPLETED else EXIT_RUN
 
 
+def cmd_kinematics(args: argparse.Namespace) -> int:
+    """Kinematic screening (Markland tests) of the scene's joints against its slope face;
+    with --plot, the equal-area stereonet as a PNG."""
+    result = kinematic_result(Path(args.scene))
+    if args.plot is not None:
+        from engine.stereonet import plot_stereonet
+
+        try:
+            plot_stereonet(result, Path(args.plot), title=Path(args.scene).stem)
+        except OSError as exc:
+            print(f"--plot: cannot write {args.plot}: {exc.strerror or exc}", file=sys.stderr)
+            return EXIT_IO
+    if args.json:
+        _print_json(kinematics_document(result))
+    else:
+        print(kinematics_text(result))
+        if args.plot is not None:
+            print(f"written: {args.plot}")
+    return EXIT_OK
+
+
 def _listed(values: list[str] | None) -> list[str] | None:
     """Values of a repeatable option that also takes comma-separated lists."""
     if values is None:
@@ -440,6 +464,14 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--json", action="store_true", help="print one JSON document")
     p.add_argument("--quiet", action="store_true", help="no progress output")
     p.set_defaults(func=cmd_fos)
+
+    p = sub.add_parser("kinematics", help="kinematic screening (Markland tests, stereonet)",
+                       description="planar and wedge sliding, flexural and direct toppling "
+                                   "of the scene's joints against its slope_face")
+    p.add_argument("scene", help="scene JSON file (with a slope_face)")
+    p.add_argument("--json", action="store_true", help="print one JSON document")
+    p.add_argument("--plot", metavar="OUT.png", help="write the stereonet to this PNG file")
+    p.set_defaults(func=cmd_kinematics)
 
     p = sub.add_parser("plot", help="PNG plots of a result file")
     p.add_argument("result", help="HDF5 result file")

@@ -12,7 +12,7 @@ from __future__ import annotations
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING, Literal
+from typing import TYPE_CHECKING, Any, Literal
 
 from service.documents import (
     blocks_document,
@@ -30,7 +30,7 @@ if TYPE_CHECKING:
 #: the HDF5 result of a simulation
 RESULT_FILE = "result.h5"
 
-Runner = Callable[["BuildResult", str, Path, TaskContext], Outcome]
+Runner = Callable[["BuildResult | None", str, Path, TaskContext], Outcome]
 
 
 @dataclass(frozen=True)
@@ -48,6 +48,10 @@ class Process:
     #: the scene `analysis.type` for which this is the default process of POST /jobs
     analysis_type: str | None
     run: Runner
+    #: whether the runner needs the built model (cut blocks); else it gets None
+    needs_model: bool = True
+    #: extra check of a validated Scene at submission (raises SceneError), if any
+    check: Callable[[Any], Any] | None = None
 
 
 def _simulation(build: BuildResult, scene_text: str, job_dir: Path,
@@ -109,6 +113,32 @@ def _factor_of_safety(build: BuildResult, scene_text: str, job_dir: Path,
     return Outcome("failed", f"model problem: {result.message}", MODEL)
 
 
+def _kinematics(build: BuildResult | None, scene_text: str, job_dir: Path,
+                ctx: TaskContext) -> Outcome:
+    import time
+
+    import matplotlib.pyplot as plt
+
+    from engine.stereonet import plot_stereonet
+    from service.documents import kinematic_result, kinematics_document
+
+    start = time.perf_counter()
+    result = kinematic_result(scene_text)
+    write_json_atomic(job_dir / "kinematics.json", kinematics_document(result))
+    fig, _ = plot_stereonet(result, job_dir / "stereonet.png")
+    plt.close(fig)
+    ctx.report(100.0, force=True)
+    found = [f"{len(v)} {k.replace('_', ' ')}" for k, v in result.admissible().items() if v]
+    return Outcome("successful", "admissible: " + (", ".join(found) if found else "none")
+                   + f" (screened in {time.perf_counter() - start:.2f} s)")
+
+
+def _kinematics_check(scene: Any) -> None:
+    from schemas.convert import kinematic_inputs
+
+    kinematic_inputs(scene)
+
+
 def _block_cutting(build: BuildResult, scene_text: str, job_dir: Path,
                    ctx: TaskContext) -> Outcome:
     write_json_atomic(job_dir / "blocks.json", blocks_document(build))
@@ -133,6 +163,12 @@ PROCESSES: dict[str, Process] = {p.id: p for p in (
             "Cut the domain by the joints and list the blocks (volume, centroid, vertices, "
             "faces); nothing is run.",
             ("blocks.json",), "blocks.json", "blocks", None, _block_cutting),
+    Process("kinematics", "Kinematic screening (Markland tests)",
+            "Test the scene's joints against its slope_face for planar sliding, wedge "
+            "sliding (every pair), flexural and direct toppling; list the admissible sets "
+            "and pairs and draw the equal-area stereonet (stereonet.png); nothing is run.",
+            ("kinematics.json", "stereonet.png"), "kinematics.json", "kinematics", None,
+            _kinematics, needs_model=False, check=_kinematics_check),
 )}
 PROCESS_IDS: tuple[str, ...] = tuple(PROCESSES)
 #: the process ids as a type (query parameters, OpenAPI enums)
