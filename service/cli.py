@@ -325,6 +325,50 @@ def cmd_kinematics(args: argparse.Namespace) -> int:
     return EXIT_OK
 
 
+def cmd_sweep(args: argparse.Namespace) -> int:
+    """Monte Carlo sweep: N realisations of the joints' friction angle from a seed, a factor
+    of safety each (engine strength reduction or eq. 51), probability of failure."""
+    from service.sweep import SweepSpec, run_sweep
+
+    scene = json.loads(Path(args.scene).read_text(encoding="utf-8"))
+    build_model(scene)  # the scene must be valid before any realisation
+    try:
+        spec = SweepSpec(args.n, args.seed, args.friction_mean, args.friction_sd, args.mode)
+    except ValueError as exc:
+        print(f"polydda sweep: {exc}", file=sys.stderr)
+        return EXIT_SCENE
+
+    def note(done: int, n: int, now: int) -> None:
+        if not args.quiet:
+            print(f"realisation {done}/{n} done ({now} evaluated now)", file=sys.stderr,
+                  flush=True)
+
+    if spec.mode == "dda" and not args.quiet:
+        _note_compilation()
+    try:
+        doc = run_sweep(scene, spec, Path(args.out), workers=args.workers, progress=note,
+                        limit=args.limit)
+    except ValueError as exc:
+        print(f"polydda sweep: {exc}", file=sys.stderr)
+        return EXIT_SCENE
+    if args.json:
+        _print_json({k: v for k, v in doc.items() if k != "realisations"})
+        return EXIT_OK
+    for key in dict.fromkeys((spec.mode, "analytic")):
+        a = doc.get(key)
+        if a and a["n"]:
+            lo, hi = a["pof_interval_95"]
+            print(f"{key}: {a['n']} realisations, probability of failure "
+                  f"{100 * a['probability_of_failure']:.2f} % (95 % interval {100 * lo:.1f} to "
+                  f"{100 * hi:.1f} %), FS mean {a['mean']:.4f}, min {a['min']:.4f}")
+    if doc.get("pof_difference") is not None:
+        print(f"PoF difference ({spec.mode} - analytic): "
+              f"{100 * doc['pof_difference']:.2f} percentage points; FS relative difference "
+              f"max {100 * doc['fs_relative_difference']['max_abs']:.2f} %")
+    print(f"written: {Path(args.out) / 'sweep.json'}")
+    return EXIT_OK
+
+
 def _listed(values: list[str] | None) -> list[str] | None:
     """Values of a repeatable option that also takes comma-separated lists."""
     if values is None:
@@ -472,6 +516,26 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--json", action="store_true", help="print one JSON document")
     p.add_argument("--plot", metavar="OUT.png", help="write the stereonet to this PNG file")
     p.set_defaults(func=cmd_kinematics)
+
+    p = sub.add_parser("sweep", help="Monte Carlo sweep: probability of failure",
+                       description="N realisations of the joints' friction angle (normal, "
+                                   "from a seed); a factor of safety each; re-running with "
+                                   "the same --out skips the realisations already done")
+    p.add_argument("scene", help="scene JSON file")
+    p.add_argument("--n", type=int, default=200, help="realisations (default 200)")
+    p.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
+    p.add_argument("--friction-mean", type=float, required=True, metavar="DEG")
+    p.add_argument("--friction-sd", type=float, required=True, metavar="DEG")
+    p.add_argument("--mode", choices=("dda", "analytic"), default="dda",
+                   help="dda: the engine's strength reduction per realisation; analytic: "
+                        "eq. 51 (two-joint wedge) only")
+    p.add_argument("--out", required=True, metavar="DIR", help="folder of the sweep")
+    p.add_argument("--workers", type=int, default=1, help="processes (default 1)")
+    p.add_argument("--limit", type=int, metavar="K",
+                   help="evaluate at most K new realisations, then aggregate those done")
+    p.add_argument("--json", action="store_true", help="print the aggregate as JSON")
+    p.add_argument("--quiet", action="store_true", help="no progress output")
+    p.set_defaults(func=cmd_sweep)
 
     p = sub.add_parser("plot", help="PNG plots of a result file")
     p.add_argument("result", help="HDF5 result file")

@@ -1,0 +1,197 @@
+"""Monte Carlo sweeps of a scene: realisations from a seed, one factor of safety each.
+
+A :class:`SweepSpec` draws the joints' friction angle φ ~ Normal(mean, sd) (truncated to
+[0°, 90°)), one value per realisation applied to every weakened joint material; realisation
+k is the same whatever N. Each realisation is evaluated by the engine's strength reduction
+(`dda`: the scene with that φ through :func:`engine.analyses.factor_of_safety`) or by the
+analytic wedge (`analytic`: eq. 51 on the scene's two joints), and written to
+`OUT/realisations/NNNNN.json` as soon as it is done; a re-run with the same scene and spec
+skips those already there. The aggregate (probability of failure, histogram, CDF,
+sensitivity; engine.reliability) goes to `OUT/sweep.json`, beside the analytic sweep of
+the same realisations when the scene is a two-joint wedge.
+"""
+
+from __future__ import annotations
+
+import copy
+import hashlib
+import json
+import time
+from collections.abc import Callable
+from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
+from dataclasses import asdict, dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from engine.reliability import (
+    aggregate,
+    truncated_normal,
+    wedge_factor_of_safety,
+    wedge_geometry,
+)
+from service.documents import finite, write_json_atomic
+
+MODES = ("dda", "analytic")
+
+
+@dataclass(frozen=True)
+class SweepSpec:
+    """N realisations from `seed` of φ ~ Normal(friction_mean, friction_sd) in degrees."""
+
+    n: int
+    seed: int
+    friction_mean: float
+    friction_sd: float
+    mode: str = "dda"
+
+    def __post_init__(self) -> None:
+        if self.n < 1:
+            raise ValueError(f"n must be at least 1, got {self.n}")
+        if not self.friction_sd > 0:
+            raise ValueError(f"friction sd must be positive, got {self.friction_sd:g}")
+        if self.mode not in MODES:
+            raise ValueError(f"mode must be one of {', '.join(MODES)}, got '{self.mode}'")
+
+    def friction_angles(self) -> np.ndarray:
+        """φ of each realisation (degrees)."""
+        return truncated_normal(self.friction_mean, self.friction_sd, self.n, self.seed)
+
+
+def realisation_scene(scene: dict[str, Any], friction_angle: float) -> dict[str, Any]:
+    """A copy of the scene whose joint materials (all, or the factor-of-safety's weakened
+    ones when it names them) have this friction angle."""
+    out = copy.deepcopy(scene)
+    mats = out.setdefault("joint_materials", {}) or {"joint": {}}
+    out["joint_materials"] = mats
+    fos = (out.get("analysis") or {}).get("factor_of_safety") or {}
+    names = fos.get("joint_materials") or list(mats)
+    for name in names:
+        mats[name] = dict(mats.get(name, {}), friction_angle=float(friction_angle))
+    return out
+
+
+def analytic_fs(scene: dict[str, Any], friction_angle: float) -> float | None:
+    """Eq. 51 for a scene of exactly two joints (the wedge on their intersection), else
+    None; cohesion is ignored (as in eq. 51)."""
+    joints = scene.get("joints") or []
+    if len(joints) != 2:
+        return None
+    a, b = joints
+    g = wedge_geometry(a["dip"], a["dip_direction"], b["dip"], b["dip_direction"])
+    return float(wedge_factor_of_safety(g, friction_angle))
+
+
+def dda_fs(scene: dict[str, Any], friction_angle: float) -> dict[str, Any]:
+    """The engine's factor of safety of the scene with this φ (strength reduction)."""
+    from engine.analyses import factor_of_safety
+    from schemas.convert import build_model
+    from service.documents import fos_controls
+
+    start = time.perf_counter()
+    build = build_model(realisation_scene(scene, friction_angle))
+    res = factor_of_safety(build.model, fos_controls(build))
+    return {"factor_of_safety": res.factor_of_safety, "status": res.status,
+            "trials": len(res.runs), "message": res.message,
+            "wall_time": time.perf_counter() - start}
+
+
+def evaluate(scene: dict[str, Any], mode: str, index: int,
+             friction_angle: float) -> dict[str, Any]:
+    """One realisation's record: index, φ, its factor of safety (by `mode`) and eq. 51's."""
+    rec: dict[str, Any] = {"index": index, "friction_angle": float(friction_angle),
+                           "analytic_fs": analytic_fs(scene, friction_angle)}
+    if mode == "analytic":
+        rec |= {"factor_of_safety": rec["analytic_fs"], "status": "completed"}
+    else:
+        rec |= dda_fs(scene, friction_angle)
+    return rec
+
+
+def _digest(scene: dict[str, Any], spec: SweepSpec) -> str:
+    text = json.dumps({"scene": scene, "spec": asdict(spec)}, sort_keys=True)
+    return hashlib.sha256(text.encode()).hexdigest()
+
+
+def run_sweep(scene: dict[str, Any], spec: SweepSpec, out: Path, workers: int = 1,
+              progress: Callable[[int, int, int], None] | None = None,
+              should_stop: Callable[[], bool] | None = None,
+              limit: int | None = None) -> dict[str, Any]:
+    """Evaluate the realisations not yet in `out` (at most `limit` of them, in `workers`
+    processes), then aggregate every one done. `progress(done, n, evaluated_now)` after
+    each; `should_stop` ends the sweep early (the aggregate covers the realisations done)."""
+    out = Path(out)
+    rdir = out / "realisations"
+    rdir.mkdir(parents=True, exist_ok=True)
+    digest = _digest(scene, spec)
+    stamp = out / "sweep.id"
+    if stamp.exists() and stamp.read_text().strip() != digest:
+        raise ValueError(f"{out} holds a sweep of another scene or spec; use another folder")
+    stamp.write_text(digest + "\n")
+    phis = spec.friction_angles()
+    records: dict[int, dict[str, Any]] = {}
+    for k in range(spec.n):
+        path = rdir / f"{k:05d}.json"
+        if path.is_file():
+            records[k] = json.loads(path.read_text())
+    todo = [k for k in range(spec.n) if k not in records][:limit]
+    evaluated = 0
+
+    def done(rec: dict[str, Any]) -> None:
+        nonlocal evaluated
+        write_json_atomic(rdir / f"{rec['index']:05d}.json", finite(rec))
+        records[rec["index"]] = rec
+        evaluated += 1
+        if progress is not None:
+            progress(len(records), spec.n, evaluated)
+
+    stop = should_stop or (lambda: False)
+    if workers <= 1:
+        for k in todo:
+            if stop():
+                break
+            done(evaluate(scene, spec.mode, k, phis[k]))
+    else:
+        with ProcessPoolExecutor(max_workers=workers) as pool:
+            pending: set[Future] = set()
+            queue = list(todo)
+            while queue or pending:
+                while queue and len(pending) < workers and not stop():
+                    k = queue.pop(0)
+                    pending.add(pool.submit(evaluate, scene, spec.mode, k, float(phis[k])))
+                if not pending:
+                    break
+                finished, pending = wait(pending, return_when=FIRST_COMPLETED)
+                for f in finished:
+                    done(f.result())
+    doc = sweep_document(spec, [records[k] for k in sorted(records)])
+    write_json_atomic(out / "sweep.json", doc)
+    return doc
+
+
+def sweep_document(spec: SweepSpec, records: list[dict[str, Any]]) -> dict[str, Any]:
+    """Aggregate of the realisations done: by `spec.mode`, and by eq. 51 over the same
+    realisations when the scene is a two-joint wedge; their PoF difference."""
+    phi = [r["friction_angle"] for r in records]
+    fs = [r["factor_of_safety"] if r.get("status") == "completed" else None for r in records]
+    fs_arr = np.array([np.nan if f is None else f for f in fs], float)
+    doc: dict[str, Any] = {
+        "spec": asdict(spec),
+        "parameters": {"friction_angle": {"distribution": "normal", "mean": spec.friction_mean,
+                                          "sd": spec.friction_sd, "truncated_to": [0, 90]}},
+        "done": len(records),
+        spec.mode: aggregate(fs_arr, {"friction_angle": phi}),
+    }
+    ana = [r.get("analytic_fs") for r in records]
+    if spec.mode != "analytic" and records and all(a is not None for a in ana):
+        doc["analytic"] = aggregate(np.array(ana, float), {"friction_angle": phi})
+        p, q = doc[spec.mode]["probability_of_failure"], doc["analytic"]["probability_of_failure"]
+        doc["pof_difference"] = None if p is None or q is None else p - q
+        rel = fs_arr / np.array(ana, float) - 1.0
+        ok = np.isfinite(rel)
+        doc["fs_relative_difference"] = {
+            "mean": float(rel[ok].mean()) if ok.any() else None,
+            "max_abs": float(np.abs(rel[ok]).max()) if ok.any() else None}
+    doc["realisations"] = records
+    return finite(doc)

@@ -1,0 +1,114 @@
+"""Probability of failure of the paper's wedge (issue 17): realisations from a seed, eq. 51
+over them, the sweep's skip-done re-run, and the DDA sweep against eq. 51 (slow)."""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+from scipy import stats
+
+from service.cli import main
+from service.sweep import SweepSpec, analytic_fs, realisation_scene, run_sweep
+
+EXAMPLES = Path(__file__).resolve().parents[1] / "examples"
+SCENE = json.loads((EXAMPLES / "wedge.json").read_text())
+K, PLUNGE = 1.437213, 28.7499  # VALIDATION.md 2.1
+PHI_C = math.degrees(math.atan(math.tan(math.radians(PLUNGE)) / K))  # 20.893°
+SEED = 2026
+
+
+def test_realisations_are_reproducible_from_the_seed() -> None:
+    """Realisation k is the same for N = 10 and N = 200; the sample's mean and sd match
+    Normal(40, 5) within 3 standard errors."""
+    phi = SweepSpec(200, SEED, 40, 5).friction_angles()
+    assert np.array_equal(phi[:10], SweepSpec(10, SEED, 40, 5).friction_angles())
+    assert not np.array_equal(phi, SweepSpec(200, SEED + 1, 40, 5).friction_angles())
+    assert abs(phi.mean() - 40) < 3 * 5 / math.sqrt(200)
+    assert abs(phi.std(ddof=1) - 5) < 3 * 5 / math.sqrt(2 * 199)
+
+
+def test_eq51_of_the_realisation_scene() -> None:
+    """The realisation scene carries φ; eq. 51 of it is K tan φ / tan ψ (2.19819 at 40°)."""
+    s = realisation_scene(SCENE, 33.3)
+    assert s["joint_materials"]["joint"]["friction_angle"] == 33.3
+    assert SCENE["joint_materials"]["joint"]["friction_angle"] == 40  # not modified
+    assert analytic_fs(SCENE, 40) == pytest.approx(2.19819, abs=1e-5)
+    assert analytic_fs(s, 33.3) == pytest.approx(
+        K * math.tan(math.radians(33.3)) / math.tan(math.radians(PLUNGE)), rel=1e-6)
+    assert PHI_C == pytest.approx(20.893, abs=1e-3)
+
+
+@pytest.mark.parametrize("mean", [40.0, 25.0])
+def test_analytic_pof_of_the_paper_wedge(tmp_path: Path, mean: float) -> None:
+    """PoF by eq. 51 over N = 200 realisations is the fraction with φ < φ_c = 20.893°; it is
+    within 3 binomial standard errors of Φ((φ_c − mean) / 5): 6.7e-5 for mean 40° (so no
+    failure among 200: the acceptance comparison is 0 against 0), 0.206 for mean 25°."""
+    spec = SweepSpec(200, SEED, mean, 5, mode="analytic")
+    doc = run_sweep(SCENE, spec, tmp_path)
+    a = doc["analytic"]
+    phi = spec.friction_angles()
+    assert a["n"] == 200 and a["failures"] == int((phi < PHI_C).sum())
+    exact = stats.norm.cdf((PHI_C - mean) / 5)
+    assert abs(a["probability_of_failure"] - exact) < 3 * math.sqrt(exact * (1 - exact) / 200)
+    if mean == 40:
+        assert a["failures"] == 0 and a["pof_interval_95"][1] == pytest.approx(0.0188, abs=1e-4)
+    assert a["sensitivity"]["friction_angle"] == pytest.approx(1.0)  # F grows with φ only
+    assert a["min"] == pytest.approx(K * math.tan(math.radians(phi.min()))
+                                     / math.tan(math.radians(PLUNGE)), rel=1e-6)
+    assert sum(a["histogram"]["counts"]) == 200 and a["cdf"]["p"][-1] == 1.0
+
+
+def test_rerun_skips_done_realisations(tmp_path: Path) -> None:
+    """A second run evaluates only the realisations whose files are missing and aggregates
+    the same numbers; a stop request ends a run early; another spec in the folder is
+    refused; 2 worker processes give the same records as 1."""
+    spec = SweepSpec(30, SEED, 30, 5, mode="analytic")
+    first = run_sweep(SCENE, spec, tmp_path / "a")
+    for k in (3, 7, 11, 29):
+        (tmp_path / "a" / "realisations" / f"{k:05d}.json").unlink()
+    evaluated: list[int] = []
+    again = run_sweep(SCENE, spec, tmp_path / "a",
+                      progress=lambda done, n, now: evaluated.append(now))
+    assert evaluated == [1, 2, 3, 4]
+    assert again == first
+    calls = iter(range(100))
+    part = run_sweep(SCENE, spec, tmp_path / "b", should_stop=lambda: next(calls) >= 5)
+    assert part["done"] == 5 and part["analytic"]["n"] == 5
+    with pytest.raises(ValueError, match="another scene or spec"):
+        run_sweep(SCENE, SweepSpec(30, SEED + 1, 30, 5, mode="analytic"), tmp_path / "a")
+    two = run_sweep(SCENE, spec, tmp_path / "c", workers=2)
+    assert two["realisations"] == first["realisations"]
+
+
+def test_cli_sweep(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    args = ["sweep", str(EXAMPLES / "wedge.json"), "--n", "200", "--seed", str(SEED),
+            "--friction-mean", "25", "--friction-sd", "5", "--mode", "analytic",
+            "--out", str(tmp_path), "--quiet"]
+    assert main(args + ["--json"]) == 0
+    doc = json.loads(capsys.readouterr().out)
+    phi = SweepSpec(200, SEED, 25, 5).friction_angles()
+    assert doc["analytic"]["probability_of_failure"] == pytest.approx((phi < PHI_C).mean())
+    assert (tmp_path / "sweep.json").is_file()
+    assert main(args) == 0
+    assert "probability of failure" in capsys.readouterr().out
+    assert main(args[:-1] + ["--friction-sd", "0"]) == 2
+
+
+# --------------------------------------------------------------------------- DDA (slow)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("n", [200])
+def test_dda_sweep_pof_matches_eq51(tmp_path: Path, n: int) -> None:
+    """Acceptance (issue 17): φ ~ Normal(40°, 5°) on both joints, N = 200, seed 2026: the
+    PoF of the engine's strength reduction per realisation is within 2 percentage points of
+    eq. 51 over the same realisations, and each factor of safety within 2 % of eq. 51
+    (VALIDATION.md 2.3). About 40-80 s per realisation on one core."""
+    doc = run_sweep(SCENE, SweepSpec(n, SEED, 40, 5), tmp_path, workers=2)
+    assert doc["dda"]["n"] == n
+    assert abs(doc["pof_difference"]) <= 0.02
+    assert doc["fs_relative_difference"]["max_abs"] < 0.02
