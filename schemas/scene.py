@@ -435,6 +435,25 @@ class SlopeFaceSpec(_Model):
         None, description="degrees; default: each joint's own joint material")
 
 
+class NormalSpec(_Model):
+    """A normally distributed parameter: mean and standard deviation."""
+
+    mean: float
+    sd: Positive
+
+
+class MonteCarloSpec(_Model):
+    """A Monte Carlo sweep (process `sweep`, `polydda sweep`): `n` realisations from `seed`
+    of the joints' friction angle (one value per realisation, truncated to [0°, 90°)), each
+    evaluated by the engine's strength reduction (`dda`) or eq. 51 for a two-joint wedge
+    (`analytic`)."""
+
+    n: Annotated[int, Field(ge=1, le=10_000)] = Field(200, description="realisations")
+    seed: Annotated[int, Field(ge=0)] = Field(0, description="random seed")
+    friction_angle: NormalSpec = Field(description="degrees")
+    mode: Literal["dda", "analytic"] = "dda"
+
+
 # --------------------------------------------------------------------------- scene
 
 DEFAULT_MATERIAL_NAME = "rock"
@@ -471,6 +490,9 @@ class Scene(_Model):
     analysis: AnalysisSpec = Field(default_factory=AnalysisSpec)
     slope_face: SlopeFaceSpec | None = Field(
         None, description="the slope face for kinematic screening (not used by runs)")
+    sweep: MonteCarloSpec | None = Field(
+        None, description="a Monte Carlo sweep of the joints' friction angle (process "
+                          "'sweep'; not used by runs)")
 
     @model_validator(mode="after")
     def _defaults(self) -> Scene:

@@ -25,7 +25,7 @@ from engine.results import ResultWriter
 from engine.simulation import STATUS_COMPLETED, Progress, run
 from schemas.convert import BuildResult, build_model
 from schemas.errors import SceneError
-from schemas.scene import SCHEMA_VERSION, scene_json_schema
+from schemas.scene import SCHEMA_VERSION, load_scene, scene_json_schema
 from service.documents import (
     SEARCH_DISTANCE_RATIO,
     blocks_document,
@@ -332,8 +332,23 @@ def cmd_sweep(args: argparse.Namespace) -> int:
 
     scene = json.loads(Path(args.scene).read_text(encoding="utf-8"))
     build_model(scene)  # the scene must be valid before any realisation
+    given = load_scene(scene).sweep
+    options = {"n": args.n, "seed": args.seed, "mode": args.mode,
+               "friction_mean": args.friction_mean, "friction_sd": args.friction_sd}
+    from_scene = {} if given is None else {
+        "n": given.n, "seed": given.seed, "mode": given.mode,
+        "friction_mean": given.friction_angle.mean, "friction_sd": given.friction_angle.sd}
+    values = {k: v if v is not None else from_scene.get(k) for k, v in options.items()}
+    if values["friction_mean"] is None or values["friction_sd"] is None:
+        print("polydda sweep: give --friction-mean and --friction-sd (or the scene's "
+              "sweep.friction_angle)", file=sys.stderr)
+        return EXIT_SCENE
     try:
-        spec = SweepSpec(args.n, args.seed, args.friction_mean, args.friction_sd, args.mode)
+        defaults = {"n": 200, "seed": 0, "mode": "dda"}
+        values = {k: defaults[k] if v is None and k in defaults else v
+                  for k, v in values.items()}
+        spec = SweepSpec(values["n"], values["seed"], values["friction_mean"],
+                         values["friction_sd"], values["mode"])
     except ValueError as exc:
         print(f"polydda sweep: {exc}", file=sys.stderr)
         return EXIT_SCENE
@@ -522,11 +537,13 @@ def build_parser() -> argparse.ArgumentParser:
                                    "from a seed); a factor of safety each; re-running with "
                                    "the same --out skips the realisations already done")
     p.add_argument("scene", help="scene JSON file")
-    p.add_argument("--n", type=int, default=200, help="realisations (default 200)")
-    p.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
-    p.add_argument("--friction-mean", type=float, required=True, metavar="DEG")
-    p.add_argument("--friction-sd", type=float, required=True, metavar="DEG")
-    p.add_argument("--mode", choices=("dda", "analytic"), default="dda",
+    p.add_argument("--n", type=int, help="realisations (default: the scene's sweep.n, or 200)")
+    p.add_argument("--seed", type=int, help="random seed (default: sweep.seed, or 0)")
+    p.add_argument("--friction-mean", type=float, metavar="DEG",
+                   help="mean friction angle (default: sweep.friction_angle.mean)")
+    p.add_argument("--friction-sd", type=float, metavar="DEG",
+                   help="its standard deviation (default: sweep.friction_angle.sd)")
+    p.add_argument("--mode", choices=("dda", "analytic"),
                    help="dda: the engine's strength reduction per realisation; analytic: "
                         "eq. 51 (two-joint wedge) only")
     p.add_argument("--out", required=True, metavar="DIR", help="folder of the sweep")

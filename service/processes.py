@@ -139,6 +139,36 @@ def _kinematics_check(scene: Any) -> None:
     kinematic_inputs(scene)
 
 
+def _sweep(build: BuildResult | None, scene_text: str, job_dir: Path,
+           ctx: TaskContext) -> Outcome:
+    import json
+
+    from service.sweep import run_sweep, spec_of_scene
+
+    scene = json.loads(scene_text)
+    spec = spec_of_scene(scene)
+
+    def progress(done: int, n: int, now: int) -> None:
+        ctx.report(100.0 * done / n, force=True, step=done,
+                   message=f"{done} of {n} realisations done")
+
+    ctx.report(0.0, force=True, step=0, message=f"0 of {spec.n} realisations done")
+    doc = run_sweep(scene, spec, job_dir, progress=progress, should_stop=ctx.should_stop)
+    a = doc[spec.mode]
+    pof = "none evaluated" if not a["n"] else (
+        f"probability of failure {100 * a['probability_of_failure']:.2f} % over {a['n']}")
+    if doc["done"] < spec.n:
+        return Outcome("dismissed", f"cancelled after {doc['done']} of {spec.n} "
+                                    f"realisations; {pof}; a re-run skips those done")
+    return Outcome("successful", f"{spec.mode}: {pof} realisations")
+
+
+def _sweep_check(scene: Any) -> None:
+    from service.sweep import spec_of_scene
+
+    spec_of_scene(scene.model_dump(mode="json", exclude_none=True))
+
+
 def _block_cutting(build: BuildResult, scene_text: str, job_dir: Path,
                    ctx: TaskContext) -> Outcome:
     write_json_atomic(job_dir / "blocks.json", blocks_document(build))
@@ -169,6 +199,14 @@ PROCESSES: dict[str, Process] = {p.id: p for p in (
             "and pairs and draw the equal-area stereonet (stereonet.png); nothing is run.",
             ("kinematics.json", "stereonet.png"), "kinematics.json", "kinematics", None,
             _kinematics, needs_model=False, check=_kinematics_check),
+    Process("sweep", "Monte Carlo sweep (probability of failure)",
+            "Draw the scene's sweep.n realisations of the joints' friction angle from "
+            "sweep.seed; find each one's factor of safety (the engine's strength reduction, "
+            "or eq. 51 for a two-joint wedge with mode 'analytic'); aggregate the "
+            "probability of failure, FS histogram and CDF and the sensitivity to φ, beside "
+            "eq. 51 over the same realisations. Progress counts realisations; a cancelled "
+            "or re-queued job keeps those done.",
+            ("sweep.json",), "sweep.json", "sweep", None, _sweep, check=_sweep_check),
 )}
 PROCESS_IDS: tuple[str, ...] = tuple(PROCESSES)
 #: the process ids as a type (query parameters, OpenAPI enums)

@@ -83,29 +83,51 @@ def analytic_fs(scene: dict[str, Any], friction_angle: float) -> float | None:
     return float(wedge_factor_of_safety(g, friction_angle))
 
 
-def dda_fs(scene: dict[str, Any], friction_angle: float) -> dict[str, Any]:
-    """The engine's factor of safety of the scene with this φ (strength reduction)."""
-    from engine.analyses import factor_of_safety
+class Stopped(Exception):
+    """A stop was asked for in the middle of a realisation."""
+
+
+def spec_of_scene(scene: dict[str, Any]) -> SweepSpec:
+    """The SweepSpec of a scene's `sweep` (SceneError when it has none or it is invalid)."""
+    from schemas.errors import SceneError
+    from schemas.scene import load_scene
+
+    s = load_scene(scene).sweep
+    if s is None:
+        raise SceneError([{"loc": "sweep", "msg": "a sweep needs 'sweep': {\"n\", \"seed\", "
+                           "\"friction_angle\": {\"mean\", \"sd\"}, \"mode\"}"}])
+    return SweepSpec(s.n, s.seed, s.friction_angle.mean, s.friction_angle.sd, s.mode)
+
+
+def dda_fs(scene: dict[str, Any], friction_angle: float,
+           should_stop: Callable[[], bool] | None = None) -> dict[str, Any]:
+    """The engine's factor of safety of the scene with this φ (strength reduction);
+    Stopped between trials once `should_stop()`."""
+    from engine.analyses import TrialRun, factor_of_safety
     from schemas.convert import build_model
     from service.documents import fos_controls
 
+    def check(_: TrialRun) -> None:
+        if should_stop is not None and should_stop():
+            raise Stopped
+
     start = time.perf_counter()
     build = build_model(realisation_scene(scene, friction_angle))
-    res = factor_of_safety(build.model, fos_controls(build))
+    res = factor_of_safety(build.model, fos_controls(build), progress=check)
     return {"factor_of_safety": res.factor_of_safety, "status": res.status,
             "trials": len(res.runs), "message": res.message,
             "wall_time": time.perf_counter() - start}
 
 
-def evaluate(scene: dict[str, Any], mode: str, index: int,
-             friction_angle: float) -> dict[str, Any]:
+def evaluate(scene: dict[str, Any], mode: str, index: int, friction_angle: float,
+             should_stop: Callable[[], bool] | None = None) -> dict[str, Any]:
     """One realisation's record: index, φ, its factor of safety (by `mode`) and eq. 51's."""
     rec: dict[str, Any] = {"index": index, "friction_angle": float(friction_angle),
                            "analytic_fs": analytic_fs(scene, friction_angle)}
     if mode == "analytic":
         rec |= {"factor_of_safety": rec["analytic_fs"], "status": "completed"}
     else:
-        rec |= dda_fs(scene, friction_angle)
+        rec |= dda_fs(scene, friction_angle, should_stop)
     return rec
 
 
@@ -151,7 +173,10 @@ def run_sweep(scene: dict[str, Any], spec: SweepSpec, out: Path, workers: int = 
         for k in todo:
             if stop():
                 break
-            done(evaluate(scene, spec.mode, k, phis[k]))
+            try:
+                done(evaluate(scene, spec.mode, k, phis[k], stop))
+            except Stopped:
+                break
     else:
         with ProcessPoolExecutor(max_workers=workers) as pool:
             pending: set[Future] = set()

@@ -112,3 +112,40 @@ def test_dda_sweep_pof_matches_eq51(tmp_path: Path, n: int) -> None:
     assert doc["dda"]["n"] == n
     assert abs(doc["pof_difference"]) <= 0.02
     assert doc["fs_relative_difference"]["max_abs"] < 0.02
+
+
+# --------------------------------------------------------------------------- API
+
+
+def sweep_scene(**sweep: object) -> dict:
+    scene = json.loads(json.dumps(SCENE))
+    scene["sweep"] = {"n": 50, "seed": SEED, "friction_angle": {"mean": 25, "sd": 5},
+                      "mode": "analytic"} | sweep
+    return scene
+
+
+def test_api_sweep_process_equals_the_cli(tmp_path: Path,
+                                          capsys: pytest.CaptureFixture[str]) -> None:
+    """POST /jobs?process=sweep (embedded backend) gives the numbers `polydda sweep` gives
+    for the same scene; a scene without `sweep` is refused with 422."""
+    from service.app import create_app
+    from service.settings import Settings
+    from tests.service_helpers import TestClient, wait_final
+
+    scene = sweep_scene()
+    path = tmp_path / "scene.json"
+    path.write_text(json.dumps(scene))
+    assert main(["sweep", str(path), "--out", str(tmp_path / "cli"), "--json", "--quiet"]) == 0
+    cli = json.loads(capsys.readouterr().out)
+    with TestClient(create_app(Settings(data_dir=tmp_path / "data", max_workers=1))) as c:
+        r = c.post("/jobs", params={"process": "sweep"}, json=scene)
+        assert r.status_code == 201, r.text
+        job = wait_final(c, r.headers["Location"])
+        assert job["status"] == "successful", job
+        assert job["progress"] == 100 and job["message"].startswith("analytic: probability")
+        doc = c.get(r.headers["Location"] + "/results").json()["sweep"]
+        assert doc["analytic"] == cli["analytic"] and doc["done"] == 50
+        bad = dict(scene)
+        del bad["sweep"]
+        r = c.post("/jobs", params={"process": "sweep"}, json=bad)
+        assert r.status_code == 422 and "sweep" in r.text
