@@ -94,13 +94,11 @@ def stereonet_data(result: KinematicResult) -> dict[str, Any]:
 
 def plot_stereonet(result: KinematicResult, path: str | Path | None = None,
                    title: str | None = None) -> tuple[Any, dict[str, Any]]:
-    """Draw :func:`stereonet_data` on an equal-area lower-hemisphere net; save to `path`
-    (PNG) if given. Returns the figure and the data drawn."""
+    """Draw :func:`stereonet_data` on an equal-area lower-hemisphere net (a matplotlib
+    Figure on the Agg canvas); save to `path` (PNG) if given. Returns it and the data."""
     import matplotlib
-
-    if path is not None and matplotlib.get_backend().lower() not in ("agg", "pdf", "svg"):
-        matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
 
     with warnings.catch_warnings():
         warnings.filterwarnings("ignore", message="Overriding `Axes.cla`",
@@ -108,7 +106,8 @@ def plot_stereonet(result: KinematicResult, path: str | Path | None = None,
         import mplstereonet  # noqa: F401  (registers the projection)
 
     data = stereonet_data(result)
-    fig = plt.figure(figsize=(8, 9.4))
+    fig = Figure(figsize=(8, 9.4))  # object API on Agg, as engine.plots: no pyplot state
+    FigureCanvasAgg(fig)
     # a square axes box: mplstereonet places the azimuth labels on the box's ellipse
     ax = fig.add_axes((0.125, 0.2, 0.75, 6 / 9.4), projection="equal_area_stereonet")
     ax.fill(*data["toppling_zone"], color="tab:purple", alpha=0.18,

@@ -117,16 +117,13 @@ def _kinematics(build: BuildResult | None, scene_text: str, job_dir: Path,
                 ctx: TaskContext) -> Outcome:
     import time
 
-    import matplotlib.pyplot as plt
-
     from engine.stereonet import plot_stereonet
     from service.documents import kinematic_result, kinematics_document
 
     start = time.perf_counter()
     result = kinematic_result(scene_text)
     write_json_atomic(job_dir / "kinematics.json", kinematics_document(result))
-    fig, _ = plot_stereonet(result, job_dir / "stereonet.png")
-    plt.close(fig)
+    plot_stereonet(result, job_dir / "stereonet.png")
     ctx.report(100.0, force=True)
     found = [f"{len(v)} {k.replace('_', ' ')}" for k, v in result.admissible().items() if v]
     return Outcome("successful", "admissible: " + (", ".join(found) if found else "none")
