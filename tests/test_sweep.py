@@ -149,3 +149,25 @@ def test_api_sweep_process_equals_the_cli(tmp_path: Path,
         del bad["sweep"]
         r = c.post("/jobs", params={"process": "sweep"}, json=bad)
         assert r.status_code == 422 and "sweep" in r.text
+
+
+@pytest.mark.slow
+def test_stop_reaches_inside_a_dda_realisation(tmp_path: Path) -> None:
+    """A stop asked for during the first realisation ends it after its current trial (one
+    3 s observation, not a whole bisection); nothing half-done is written, and the re-run
+    evaluates it in full."""
+    import time
+
+    asked: list[float] = []
+
+    def stop() -> bool:
+        asked.append(time.monotonic())
+        return len(asked) > 1  # the loop's check passes, the first trial's check stops
+
+    spec = SweepSpec(2, SEED, 40, 5)
+    t0 = time.monotonic()
+    doc = run_sweep(SCENE, spec, tmp_path, should_stop=stop)
+    assert doc["done"] == 0 and not list((tmp_path / "realisations").iterdir())
+    assert len(asked) == 2 and asked[1] - t0 < 60
+    rest = run_sweep(SCENE, spec, tmp_path, limit=1)
+    assert rest["done"] == 1 and rest["realisations"][0]["trials"] >= 8
