@@ -150,6 +150,27 @@ def test_intersection_is_in_both_planes() -> None:
         assert abs(normal(dip, dd) @ line) < 1e-12
 
 
+def test_jointed_slope_example_by_hand() -> None:
+    """examples/jointed_slope.json, face 65/180, φ 40°: the bedding 35/180 daylights but is
+    flatter than φ; the 80/000 set topples (80° ≥ 90 − 65 + 40 = 65°); the discs 60/130 and
+    60/230 meet along 180/atan(tan 60° cos 50°) = 48.07° (> 40°, < 65°): a wedge on both; the
+    release joints 85/090 with 60/130 meet along 173.7/51.4 (daylights: 64.87° along it)."""
+    r = kinematic_analysis(*kinematic_inputs(EXAMPLES / "jointed_slope.json"))
+    assert failed(r.planar[0].conditions) == ["steeper than friction"]
+    assert r.admissible()["flexural_toppling"] == ["toppling"]
+    w = {tuple(x.sets): x for x in r.wedge}
+    ew = w[("wedge_east", "wedge_west")]
+    assert ew.admissible and ew.sliding_on == "both"
+    assert (ew.trend, ew.plunge) == (pytest.approx(180.0, abs=1e-9), pytest.approx(
+        math.degrees(math.atan(math.tan(math.radians(60)) * math.cos(math.radians(50)))),
+        abs=1e-9))
+    assert ew.plunge == pytest.approx(48.07, abs=0.01)
+    re = w[("release", "wedge_east")]
+    assert re.admissible and (re.trend, re.plunge) == (pytest.approx(173.7, abs=0.05),
+                                                       pytest.approx(51.4, abs=0.05))
+    assert r.admissible()["planar"] == [] and r.admissible()["direct_toppling"] == []
+
+
 def test_scene_without_slope_face_is_an_error() -> None:
     scene = json.loads(WEDGE.read_text())
     del scene["slope_face"]
