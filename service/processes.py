@@ -156,7 +156,7 @@ def _sweep(build: BuildResult | None, scene_text: str, job_dir: Path,
         f"probability of failure {100 * a['probability_of_failure']:.2f} % over {a['n']}")
     if doc["done"] < spec.n:
         return Outcome("dismissed", f"cancelled after {doc['done']} of {spec.n} "
-                                    f"realisations; {pof}; a re-run skips those done")
+                                    f"realisations; {pof} (partial aggregate kept)")
     return Outcome("successful", f"{spec.mode}: {pof} realisations")
 
 
@@ -202,7 +202,8 @@ PROCESSES: dict[str, Process] = {p.id: p for p in (
             "or eq. 51 for a two-joint wedge with mode 'analytic'); aggregate the "
             "probability of failure, FS histogram and CDF and the sensitivity to φ, beside "
             "eq. 51 over the same realisations. Progress counts realisations; a cancelled "
-            "or re-queued job keeps those done.",
+            "job keeps the aggregate of those done, and a job re-queued after its worker "
+            "died skips them (one file per realisation in the job's folder).",
             ("sweep.json",), "sweep.json", "sweep", None, _sweep, check=_sweep_check),
 )}
 PROCESS_IDS: tuple[str, ...] = tuple(PROCESSES)
