@@ -171,3 +171,30 @@ def test_stop_reaches_inside_a_dda_realisation(tmp_path: Path) -> None:
     assert len(asked) == 2 and asked[1] - t0 < 60
     rest = run_sweep(SCENE, spec, tmp_path, limit=1)
     assert rest["done"] == 1 and rest["realisations"][0]["trials"] >= 8
+
+
+@pytest.mark.slow
+def test_requeued_sweep_job_redoes_no_realisation(tmp_path: Path) -> None:
+    """The API stops mid-sweep (its job process is terminated and the job re-queued); the
+    next API process runs the job again in the same folder: it ends with every realisation
+    and rewrites none of those written before the stop."""
+    from service.app import create_app
+    from service.settings import Settings
+    from tests.service_helpers import TestClient, wait_final, wait_until
+
+    settings = Settings(data_dir=tmp_path / "data", max_workers=1)
+    scene = sweep_scene(n=2000)
+    with TestClient(create_app(settings)) as c:
+        url = c.post("/jobs", params={"process": "sweep"}, json=scene).headers["Location"]
+        folder = settings.job_dir(url.rsplit("/", 1)[1]) / "realisations"
+        wait_until(lambda: folder.is_dir() and len(list(folder.glob("*.json"))) > 100, 120,
+                   "realisations")
+    before = {p.name: p.stat().st_mtime_ns for p in folder.glob("*.json")}
+    assert 100 < len(before) < 2000
+    with TestClient(create_app(settings)) as c:
+        job = wait_final(c, url, timeout=600)
+        assert job["status"] == "successful", job
+        assert c.get(url + "/results").json()["sweep"]["done"] == 2000
+    after = {p.name: p.stat().st_mtime_ns for p in folder.glob("*.json")}
+    assert len(after) == 2000
+    assert all(after[name] == t for name, t in before.items())
