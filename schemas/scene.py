@@ -452,6 +452,19 @@ class MonteCarloSpec(_Model):
     seed: Annotated[int, Field(ge=0)] = Field(0, description="random seed")
     friction_angle: NormalSpec = Field(description="degrees")
     mode: Literal["dda", "analytic"] = "dda"
+    realisations: list[Annotated[int, Field(ge=0)]] | None = Field(
+        None, description="evaluate only these realisations (0 to n - 1; a share of the "
+                          "sweep for one job); default all")
+
+    @model_validator(mode="after")
+    def _indices(self) -> MonteCarloSpec:
+        if self.realisations is not None:
+            bad = [k for k in self.realisations if k >= self.n]
+            if bad:
+                raise ValueError(f"realisations must be below n = {self.n} (got {bad[0]})")
+            if len(set(self.realisations)) != len(self.realisations):
+                raise ValueError("realisations are listed twice")
+        return self
 
 
 # --------------------------------------------------------------------------- scene

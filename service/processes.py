@@ -149,13 +149,15 @@ def _sweep(build: BuildResult | None, scene_text: str, job_dir: Path,
         ctx.report(100.0 * done / n, force=True, step=done,
                    message=f"{done} of {n} realisations done")
 
-    ctx.report(0.0, force=True, step=0, message=f"0 of {spec.n} realisations done")
+    ctx.report(0.0, force=True, step=0,
+               message=f"0 of {len(spec.indices())} realisations done")
     doc = run_sweep(scene, spec, job_dir, progress=progress, should_stop=ctx.should_stop)
     a = doc[spec.mode]
     pof = "none evaluated" if not a["n"] else (
         f"probability of failure {100 * a['probability_of_failure']:.2f} % over {a['n']}")
-    if doc["done"] < spec.n:
-        return Outcome("dismissed", f"cancelled after {doc['done']} of {spec.n} "
+    share = len(spec.indices())
+    if doc["done"] < share:
+        return Outcome("dismissed", f"cancelled after {doc['done']} of {share} "
                                     f"realisations; {pof} (partial aggregate kept)")
     return Outcome("successful", f"{spec.mode}: {pof} realisations")
 

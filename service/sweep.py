@@ -45,6 +45,8 @@ class SweepSpec:
     friction_mean: float
     friction_sd: float
     mode: str = "dda"
+    #: the realisations this sweep evaluates (a share of the N; None: all)
+    only: tuple[int, ...] | None = None
 
     def __post_init__(self) -> None:
         if self.n < 1:
@@ -57,6 +59,14 @@ class SweepSpec:
     def friction_angles(self) -> np.ndarray:
         """φ of each realisation (degrees)."""
         return truncated_normal(self.friction_mean, self.friction_sd, self.n, self.seed)
+
+    def indices(self) -> list[int]:
+        """The realisations to evaluate, in order."""
+        return list(range(self.n)) if self.only is None else sorted(self.only)
+
+    def population(self) -> dict[str, Any]:
+        """What makes realisation k what it is (every field but `only`)."""
+        return {k: v for k, v in asdict(self).items() if k != "only"}
 
 
 def realisation_scene(scene: dict[str, Any], friction_angle: float) -> dict[str, Any]:
@@ -96,7 +106,8 @@ def spec_of_scene(scene: dict[str, Any]) -> SweepSpec:
     if s is None:
         raise SceneError([{"loc": "sweep", "msg": "a sweep needs 'sweep': {\"n\", \"seed\", "
                            "\"friction_angle\": {\"mean\", \"sd\"}, \"mode\"}"}])
-    return SweepSpec(s.n, s.seed, s.friction_angle.mean, s.friction_angle.sd, s.mode)
+    only = None if s.realisations is None else tuple(s.realisations)
+    return SweepSpec(s.n, s.seed, s.friction_angle.mean, s.friction_angle.sd, s.mode, only)
 
 
 def dda_fs(scene: dict[str, Any], friction_angle: float,
@@ -132,7 +143,11 @@ def evaluate(scene: dict[str, Any], mode: str, index: int, friction_angle: float
 
 
 def _digest(scene: dict[str, Any], spec: SweepSpec) -> str:
-    text = json.dumps({"scene": scene, "spec": asdict(spec)}, sort_keys=True)
+    """Identity of the realisations' population: the scene and spec but not the share."""
+    scene = copy.deepcopy(scene)
+    if isinstance(scene.get("sweep"), dict):
+        scene["sweep"].pop("realisations", None)
+    text = json.dumps({"scene": scene, "spec": spec.population()}, sort_keys=True)
     return hashlib.sha256(text.encode()).hexdigest()
 
 
@@ -153,11 +168,11 @@ def run_sweep(scene: dict[str, Any], spec: SweepSpec, out: Path, workers: int = 
     stamp.write_text(digest + "\n")
     phis = spec.friction_angles()
     records: dict[int, dict[str, Any]] = {}
-    for k in range(spec.n):
+    for k in spec.indices():
         path = rdir / f"{k:05d}.json"
         if path.is_file():
             records[k] = json.loads(path.read_text())
-    todo = [k for k in range(spec.n) if k not in records][:limit]
+    todo = [k for k in spec.indices() if k not in records][:limit]
     evaluated = 0
 
     def done(rec: dict[str, Any]) -> None:
@@ -166,7 +181,7 @@ def run_sweep(scene: dict[str, Any], spec: SweepSpec, out: Path, workers: int = 
         records[rec["index"]] = rec
         evaluated += 1
         if progress is not None:
-            progress(len(records), spec.n, evaluated)
+            progress(len(records), len(spec.indices()), evaluated)
 
     stop = should_stop or (lambda: False)
     if workers <= 1:
@@ -193,6 +208,17 @@ def run_sweep(scene: dict[str, Any], spec: SweepSpec, out: Path, workers: int = 
     doc = sweep_document(spec, [records[k] for k in sorted(records)])
     write_json_atomic(out / "sweep.json", doc)
     return doc
+
+
+def merge_documents(docs: list[dict[str, Any]]) -> dict[str, Any]:
+    """One sweep document from those of jobs that each evaluated a share of the same sweep
+    (same population; a realisation in several shares counts once)."""
+    specs = [SweepSpec(**d["spec"]) for d in docs]
+    if not specs or any(s.population() != specs[0].population() for s in specs):
+        raise ValueError("the documents are not shares of one sweep (n, seed, φ, mode differ)")
+    records = {r["index"]: r for d in docs for r in d["realisations"]}
+    whole = SweepSpec(**specs[0].population())
+    return sweep_document(whole, [records[k] for k in sorted(records)])
 
 
 def sweep_document(spec: SweepSpec, records: list[dict[str, Any]]) -> dict[str, Any]:

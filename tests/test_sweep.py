@@ -12,7 +12,13 @@ import pytest
 from scipy import stats
 
 from service.cli import main
-from service.sweep import SweepSpec, analytic_fs, realisation_scene, run_sweep
+from service.sweep import (
+    SweepSpec,
+    analytic_fs,
+    merge_documents,
+    realisation_scene,
+    run_sweep,
+)
 
 EXAMPLES = Path(__file__).resolve().parents[1] / "examples"
 SCENE = json.loads((EXAMPLES / "wedge.json").read_text())
@@ -149,6 +155,47 @@ def test_api_sweep_process_equals_the_cli(tmp_path: Path,
         del bad["sweep"]
         r = c.post("/jobs", params={"process": "sweep"}, json=bad)
         assert r.status_code == 422 and "sweep" in r.text
+        r = c.post("/jobs", params={"process": "sweep"}, json=sweep_scene(realisations=[50]))
+        assert r.status_code == 422 and "below n = 50" in r.text
+
+
+def test_shares_of_a_sweep_merge_into_the_whole(tmp_path: Path) -> None:
+    """Two shares of one sweep (even and odd realisations, as two jobs would run them)
+    merge into the numbers of the whole sweep; shares of different sweeps do not merge."""
+    from service.sweep import spec_of_scene
+
+    whole = run_sweep(SCENE, spec_of_scene(sweep_scene()), tmp_path / "whole")
+    parts = [sweep_scene(realisations=list(range(first, 50, 2))) for first in (0, 1)]
+    shares = [run_sweep(s, spec_of_scene(s), tmp_path / f"share{k}")
+              for k, s in enumerate(parts)]
+    assert [d["done"] for d in shares] == [25, 25]
+    merged = merge_documents(shares)
+    assert merged["analytic"] == whole["analytic"] and merged["done"] == 50
+    assert merged["realisations"] == whole["realisations"]
+    other = run_sweep(SCENE, spec_of_scene(sweep_scene(seed=SEED + 1, n=4)), tmp_path / "x")
+    with pytest.raises(ValueError, match="not shares of one sweep"):
+        merge_documents([shares[0], other])
+
+
+@pytest.mark.slow
+def test_api_jobs_of_shares_merge_into_the_whole(tmp_path: Path) -> None:
+    """The same sweep as two jobs of the service (embedded backend), each a share of the
+    realisations: merged, the numbers of one job running them all."""
+    from service.app import create_app
+    from service.settings import Settings
+    from tests.service_helpers import TestClient, wait_final
+
+    docs = []
+    with TestClient(create_app(Settings(data_dir=tmp_path / "data", max_workers=2))) as c:
+        urls = [c.post("/jobs", params={"process": "sweep"}, json=scene).headers["Location"]
+                for scene in (sweep_scene(), sweep_scene(realisations=list(range(0, 50, 2))),
+                              sweep_scene(realisations=list(range(1, 50, 2))))]
+        for url in urls:
+            assert wait_final(c, url)["status"] == "successful"
+            docs.append(c.get(url + "/results").json()["sweep"])
+    merged = merge_documents(docs[1:])
+    assert merged["analytic"] == docs[0]["analytic"]
+    assert merged["realisations"] == docs[0]["realisations"]
 
 
 @pytest.mark.slow
