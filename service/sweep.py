@@ -65,8 +65,10 @@ class SweepSpec:
         return list(range(self.n)) if self.only is None else sorted(self.only)
 
     def population(self) -> dict[str, Any]:
-        """What makes realisation k what it is (every field but `only`)."""
-        return {k: v for k, v in asdict(self).items() if k != "only"}
+        """What makes realisation k what it is (every field but `only`; 40 and 40.0 alike)."""
+        return {"n": int(self.n), "seed": int(self.seed),
+                "friction_mean": float(self.friction_mean),
+                "friction_sd": float(self.friction_sd), "mode": self.mode}
 
 
 def realisation_scene(scene: dict[str, Any], friction_angle: float) -> dict[str, Any]:

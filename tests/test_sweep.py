@@ -84,6 +84,8 @@ def test_rerun_skips_done_realisations(tmp_path: Path) -> None:
     calls = iter(range(100))
     part = run_sweep(SCENE, spec, tmp_path / "b", should_stop=lambda: next(calls) >= 5)
     assert part["done"] == 5 and part["analytic"]["n"] == 5
+    same = SweepSpec(30, SEED, 30.0, 5.0, mode="analytic")  # as the CLI parses it
+    assert run_sweep(SCENE, same, tmp_path / "a") == first
     with pytest.raises(ValueError, match="another scene or spec"):
         run_sweep(SCENE, SweepSpec(30, SEED + 1, 30, 5, mode="analytic"), tmp_path / "a")
     two = run_sweep(SCENE, spec, tmp_path / "c", workers=2)
