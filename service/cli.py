@@ -358,6 +358,8 @@ def cmd_sweep(args: argparse.Namespace) -> int:
             print(f"realisation {done}/{n} done ({now} evaluated now)", file=sys.stderr,
                   flush=True)
 
+    if args.server is not None:
+        return _sweep_on_server(args, scene, spec)
     if spec.mode == "dda" and not args.quiet:
         _note_compilation()
     try:
@@ -366,6 +368,42 @@ def cmd_sweep(args: argparse.Namespace) -> int:
     except ValueError as exc:
         print(f"polydda sweep: {exc}", file=sys.stderr)
         return EXIT_SCENE
+    return _print_sweep(args, spec, doc)
+
+
+def _sweep_on_server(args: argparse.Namespace, scene: dict[str, Any], spec: Any) -> int:
+    """`polydda sweep --server URL --jobs K`: the sweep as K jobs of the service, merged."""
+    import httpx
+
+    from service.client import ServiceError, Unreachable, sweep_jobs
+
+    scene = dict(scene, sweep={"n": spec.n, "seed": spec.seed, "mode": spec.mode,
+                               "friction_angle": {"mean": spec.friction_mean,
+                                                  "sd": spec.friction_sd}})
+    headers = {"X-API-Key": args.api_key} if args.api_key else {}
+    last = [-1]
+
+    def note(done: int, n: int, statuses: list[dict[str, Any]]) -> None:
+        if not args.quiet and done != last[0]:
+            last[0] = done
+            states = ", ".join(s["status"] for s in statuses)
+            print(f"{done}/{n} realisations done ({states})", file=sys.stderr, flush=True)
+
+    try:
+        with httpx.Client(base_url=args.server.rstrip("/"), headers=headers,
+                          timeout=60) as client:
+            doc = sweep_jobs(client, scene, args.jobs, Path(args.out), on_progress=note)
+    except httpx.TransportError as exc:
+        print(f"polydda sweep: {Unreachable(str(exc))}", file=sys.stderr)
+        return EXIT_IO
+    except (Unreachable, ServiceError) as exc:
+        print(f"polydda sweep: {exc}", file=sys.stderr)
+        return EXIT_IO if isinstance(exc, Unreachable) else EXIT_SCENE
+    return _print_sweep(args, spec, doc)
+
+
+def _print_sweep(args: argparse.Namespace, spec: Any, doc: dict[str, Any]) -> int:
+    """The sweep's aggregate: JSON (--json) or a few lines."""
     if args.json:
         _print_json({k: v for k, v in doc.items() if k != "realisations"})
         return EXIT_OK
@@ -548,6 +586,12 @@ def build_parser() -> argparse.ArgumentParser:
                         "eq. 51 (two-joint wedge) only")
     p.add_argument("--out", required=True, metavar="DIR", help="folder of the sweep")
     p.add_argument("--workers", type=int, default=1, help="processes (default 1)")
+    p.add_argument("--server", metavar="URL",
+                   help="run the realisations as --jobs jobs of this PolyDDA service "
+                        "(embedded workers or `polydda worker`s) and merge them")
+    p.add_argument("--jobs", type=int, default=2, metavar="K",
+                   help="jobs of the sweep on --server (default 2)")
+    p.add_argument("--api-key", help="API key for --server, if it requires one")
     p.add_argument("--limit", type=int, metavar="K",
                    help="evaluate at most K new realisations, then aggregate those done")
     p.add_argument("--json", action="store_true", help="print the aggregate as JSON")

@@ -29,6 +29,8 @@ if TYPE_CHECKING:
 
 #: the HDF5 result of a simulation
 RESULT_FILE = "result.h5"
+#: folder of the data directory where sweep jobs keep realisation records, by population
+SWEEPS_DIR = "sweeps"
 
 Runner = Callable[["BuildResult | None", str, Path, TaskContext], Outcome]
 
@@ -151,7 +153,10 @@ def _sweep(build: BuildResult | None, scene_text: str, job_dir: Path,
 
     ctx.report(0.0, force=True, step=0,
                message=f"0 of {len(spec.indices())} realisations done")
-    doc = run_sweep(scene, spec, job_dir, progress=progress, should_stop=ctx.should_stop)
+    # realisation files in DATA_DIR/sweeps/<population>/ (job_dir is DATA_DIR/jobs/<id>):
+    # a job resubmitted after its worker died, or another share, skips those already done
+    doc = run_sweep(scene, spec, job_dir, progress=progress, should_stop=ctx.should_stop,
+                    shared=job_dir.parent.parent / SWEEPS_DIR)
     a = doc[spec.mode]
     pof = "none evaluated" if not a["n"] else (
         f"probability of failure {100 * a['probability_of_failure']:.2f} % over {a['n']}")
@@ -204,8 +209,10 @@ PROCESSES: dict[str, Process] = {p.id: p for p in (
             "or eq. 51 for a two-joint wedge with mode 'analytic'); aggregate the "
             "probability of failure, FS histogram and CDF and the sensitivity to φ, beside "
             "eq. 51 over the same realisations. Progress counts realisations; a cancelled "
-            "job keeps the aggregate of those done, and a job re-queued after its worker "
-            "died skips them (one file per realisation in the job's folder).",
+            "job keeps the aggregate of those done. sweep.realisations makes a job one "
+            "share of a sweep (polydda sweep --server URL --jobs K fans a sweep out so); "
+            "realisation records are kept by sweep in the data directory, so a job "
+            "resubmitted after its worker died redoes none that were done.",
             ("sweep.json",), "sweep.json", "sweep", None, _sweep, check=_sweep_check),
 )}
 PROCESS_IDS: tuple[str, ...] = tuple(PROCESSES)

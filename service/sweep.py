@@ -156,14 +156,17 @@ def _digest(scene: dict[str, Any], spec: SweepSpec) -> str:
 def run_sweep(scene: dict[str, Any], spec: SweepSpec, out: Path, workers: int = 1,
               progress: Callable[[int, int, int], None] | None = None,
               should_stop: Callable[[], bool] | None = None,
-              limit: int | None = None) -> dict[str, Any]:
+              limit: int | None = None, shared: Path | None = None) -> dict[str, Any]:
     """Evaluate the realisations not yet in `out` (at most `limit` of them, in `workers`
     processes), then aggregate every one done. `progress(done, n, evaluated_now)` after
-    each; `should_stop` ends the sweep early (the aggregate covers the realisations done)."""
+    each; `should_stop` ends the sweep early (the aggregate covers the realisations done).
+    With `shared`, the realisation files live in `shared/<population digest>/` instead,
+    where every job of the same sweep finds those any other job already did."""
     out = Path(out)
-    rdir = out / "realisations"
-    rdir.mkdir(parents=True, exist_ok=True)
     digest = _digest(scene, spec)
+    rdir = out / "realisations" if shared is None else Path(shared) / digest
+    rdir.mkdir(parents=True, exist_ok=True)
+    out.mkdir(parents=True, exist_ok=True)
     stamp = out / "sweep.id"
     if stamp.exists() and stamp.read_text().strip() != digest:
         raise ValueError(f"{out} holds a sweep of another scene or spec; use another folder")

@@ -5,6 +5,9 @@ from __future__ import annotations
 
 import json
 import math
+import shutil
+import subprocess
+import time
 from pathlib import Path
 
 import numpy as np
@@ -205,8 +208,6 @@ def test_stop_reaches_inside_a_dda_realisation(tmp_path: Path) -> None:
     """A stop asked for during the first realisation ends it after its current trial (one
     3 s observation, not a whole bisection); nothing half-done is written, and the re-run
     evaluates it in full."""
-    import time
-
     asked: list[float] = []
 
     def stop() -> bool:
@@ -235,9 +236,9 @@ def test_requeued_sweep_job_redoes_no_realisation(tmp_path: Path) -> None:
     scene = sweep_scene(n=2000)
     with TestClient(create_app(settings)) as c:
         url = c.post("/jobs", params={"process": "sweep"}, json=scene).headers["Location"]
-        folder = settings.job_dir(url.rsplit("/", 1)[1]) / "realisations"
-        wait_until(lambda: folder.is_dir() and len(list(folder.glob("*.json"))) > 100, 120,
-                   "realisations")
+        sweeps = settings.data_dir / "sweeps"
+        wait_until(lambda: len(list(sweeps.glob("*/*.json"))) > 100, 120, "realisations")
+        (folder,) = sweeps.iterdir()
     before = {p.name: p.stat().st_mtime_ns for p in folder.glob("*.json")}
     assert 100 < len(before) < 2000
     with TestClient(create_app(settings)) as c:
@@ -247,3 +248,94 @@ def test_requeued_sweep_job_redoes_no_realisation(tmp_path: Path) -> None:
     after = {p.name: p.stat().st_mtime_ns for p in folder.glob("*.json")}
     assert len(after) == 2000
     assert all(after[name] == t for name, t in before.items())
+
+
+# --------------------------------------------------------------------------- sweep as jobs
+
+
+@pytest.mark.slow
+def test_sweep_jobs_on_the_embedded_backend(tmp_path: Path) -> None:
+    """`sweep_jobs` (`polydda sweep --server URL --jobs 2`): two jobs, each a share, give
+    the numbers of the sweep run locally; a re-run submits nothing new."""
+    from service.app import create_app
+    from service.client import sweep_jobs
+    from service.settings import Settings
+    from service.sweep import spec_of_scene
+    from tests.service_helpers import TestClient
+
+    scene = sweep_scene(n=100)
+    local = run_sweep(scene, spec_of_scene(scene), tmp_path / "local")
+    seen: list[int] = []
+    with TestClient(create_app(Settings(data_dir=tmp_path / "data", max_workers=2))) as c:
+        doc = sweep_jobs(c, scene, 2, tmp_path / "out",
+                         on_progress=lambda done, n, st: seen.append(done))
+        assert [j["status"] for j in doc["jobs"]] == ["successful", "successful"]
+        assert doc["analytic"] == local["analytic"]
+        assert doc["realisations"] == local["realisations"]
+        assert seen[-1] == 100 and seen == sorted(seen)
+        jobs = c.get("/jobs").json()["jobs"]
+        again = sweep_jobs(c, scene, 2, tmp_path / "out")
+        assert again["jobs"] == doc["jobs"] and len(c.get("/jobs").json()["jobs"]) == len(jobs)
+
+
+REDIS = shutil.which("redis-server")
+
+
+@pytest.mark.slow
+@pytest.mark.skipif(REDIS is None, reason="redis-server is not installed")
+def test_sweep_jobs_on_rq_workers(tmp_path: Path) -> None:
+    """Two `polydda worker`s each take one job of a sweep fanned out in two shares; merged,
+    the numbers are those of the sweep run locally (and so of the embedded backend)."""
+    import os
+
+    import httpx
+
+    from service.client import sweep_jobs
+    from service.sweep import spec_of_scene
+    from tests.service_helpers import Server, free_port, wait_until
+    from tests.test_service_rq import start_worker
+
+    port = free_port()
+    redis = subprocess.Popen(
+        [str(REDIS), "--port", str(port), "--bind", "127.0.0.1", "--save", "",
+         "--appendonly", "no", "--dir", str(tmp_path)], stdout=subprocess.DEVNULL,
+        stderr=subprocess.DEVNULL)
+    url = f"redis://127.0.0.1:{port}/0"
+    data = tmp_path / "shared"
+    scene = sweep_scene(n=1200)
+    local = run_sweep(scene, spec_of_scene(scene), tmp_path / "local")
+    workers = []
+    try:
+        from redis import Redis
+
+        conn = Redis(port=port)
+
+        def up() -> bool:
+            try:
+                return bool(conn.ping())
+            except Exception:
+                return False
+        wait_until(up, 10, "redis-server to answer")
+        conn.close()
+        workers = [start_worker(data, url, f"s{k}-{os.getpid()}", tmp_path / f"w{k}.log")
+                   for k in range(2)]
+        server = Server(data, POLYDDA_BACKEND="rq", POLYDDA_REDIS_URL=url,
+                        POLYDDA_RQ_HEARTBEAT_TTL="2")
+        server.start(timeout=180)  # slow on a loaded machine
+        try:
+            with httpx.Client(base_url=server.url, timeout=60) as c:
+                doc = sweep_jobs(c, scene, 2, tmp_path / "out")
+        finally:
+            server.stop()
+        assert [j["status"] for j in doc["jobs"]] == ["successful", "successful"]
+        assert doc["analytic"] == local["analytic"] and doc["done"] == 1200
+        assert doc["realisations"] == local["realisations"]
+        ran = [(tmp_path / f"w{k}.log").read_text().count("Job OK") for k in range(2)]
+        assert ran == [1, 1], ran  # one share on each worker
+    finally:
+        for w in workers:
+            if w.poll() is None:
+                w.terminate()
+                w.wait(20)
+        redis.terminate()
+        redis.wait(10)
