@@ -339,3 +339,43 @@ def test_sweep_jobs_on_rq_workers(tmp_path: Path) -> None:
                 w.wait(20)
         redis.terminate()
         redis.wait(10)
+
+
+@pytest.mark.slow
+def test_sweep_jobs_resubmit_a_share_whose_process_died(tmp_path: Path) -> None:
+    """The process of one share is SIGKILLed mid-share (as a dying worker would leave it):
+    the job fails for a system reason, `sweep_jobs` submits the share again, and the new job
+    redoes none of the realisations written before the kill; the merged numbers are those
+    of the local sweep."""
+    import os
+    import signal
+
+    from service.app import create_app
+    from service.client import sweep_jobs
+    from service.settings import Settings
+    from service.sweep import spec_of_scene
+    from tests.service_helpers import TestClient, job_row
+
+    scene = sweep_scene(n=1000)
+    local = run_sweep(scene, spec_of_scene(scene), tmp_path / "local")
+    settings = Settings(data_dir=tmp_path / "data", max_workers=2)
+    before: dict[Path, int] = {}
+    killed: list[str] = []
+
+    def kill_first(done: int, n: int, statuses: list[dict]) -> None:
+        if killed or done < 100 or statuses[0]["status"] != "running":
+            return
+        pid = job_row(settings.data_dir, statuses[0]["jobID"])["worker_pid"]
+        os.kill(pid, signal.SIGKILL)
+        killed.append(statuses[0]["jobID"])
+        time.sleep(0.5)
+        before.update({p: p.stat().st_mtime_ns
+                       for p in (settings.data_dir / "sweeps").glob("*/*.json")})
+
+    with TestClient(create_app(settings)) as c:
+        doc = sweep_jobs(c, scene, 2, tmp_path / "out", on_progress=kill_first, poll=0.2)
+        assert killed and c.get(f"/jobs/{killed[0]}").json()["status"] == "failed"
+    assert [j["status"] for j in doc["jobs"]] == ["successful", "successful"]
+    assert killed[0] not in doc["jobs"][0]["url"]  # the share ran again as a new job
+    assert doc["analytic"] == local["analytic"] and doc["done"] == 1000
+    assert before and all(p.stat().st_mtime_ns == t for p, t in before.items())
