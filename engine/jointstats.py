@@ -116,10 +116,10 @@ def plane_positions(spacing: Distribution, length: float,
     """Offsets (m) along the set's normal of its planes across `length`: spacings drawn
     one after another from a random start within the first spacing."""
     rng = np.random.default_rng(seed)
-    first = spacing.sample(1, rng)[0] * rng.random()
-    out = [first]
-    while True:
-        nxt = out[-1] + spacing.sample(1, rng)[0]
-        if nxt > length:
-            return np.array(out)
-        out.append(nxt)
+    start = spacing.sample(1, rng)[0] * rng.random()
+    batch = int(2 * length / spacing.mean) + 16
+    gaps = np.empty(0)
+    while start + gaps.sum() <= length:  # rarely more than one batch
+        gaps = np.concatenate([gaps, spacing.sample(batch, rng)])
+    pos = start + np.concatenate([[0.0], np.cumsum(gaps)])
+    return pos[pos <= length]
