@@ -5,8 +5,10 @@ A :class:`SweepSpec` draws the joints' friction angle φ ~ Normal(mean, sd) (tru
 k is the same whatever N. Each realisation is evaluated by the engine's strength reduction
 (`dda`: the scene with that φ through :func:`engine.analyses.factor_of_safety`) or by the
 analytic wedge (`analytic`: eq. 51 on the scene's two joints), and written to
-`OUT/realisations/NNNNN.json` as soon as it is done; a re-run with the same scene and spec
-skips those already there. The aggregate (probability of failure, histogram, CDF,
+`OUT/realisations/NNNNN.json` (or, for the service's jobs, to a folder shared by every job
+of the same sweep) as soon as it is done; a re-run with the same scene and spec skips
+those already there. A spec may cover a share of the N (`only`): jobs run shares and
+:func:`merge_documents` joins them. The aggregate (probability of failure, histogram, CDF,
 sensitivity; engine.reliability) goes to `OUT/sweep.json`, beside the analytic sweep of
 the same realisations when the scene is a two-joint wedge.
 """
