@@ -56,6 +56,8 @@ def wedge_geometry(dip_a: float, dip_direction_a: float, dip_b: float,
     N_A n_A + N_B n_B balances the weight's part normal to the intersection."""
     na, nb = normal(dip_a, dip_direction_a), normal(dip_b, dip_direction_b)
     line = np.cross(na, nb)
+    if np.linalg.norm(line) < 1e-9:
+        raise ValueError("the two planes are parallel: no wedge")
     line /= np.linalg.norm(line)
     if line[2] > 0:
         line = -line

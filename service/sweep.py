@@ -93,7 +93,12 @@ def analytic_fs(scene: dict[str, Any], friction_angle: float) -> float | None:
     if len(joints) != 2:
         return None
     a, b = joints
-    g = wedge_geometry(a["dip"], a["dip_direction"], b["dip"], b["dip_direction"])
+    try:
+        g = wedge_geometry(a["dip"], a["dip_direction"], b["dip"], b["dip_direction"])
+    except ValueError:  # parallel planes
+        return None
+    if not 0 < g.plunge < 90 or min(g.n_a, g.n_b) < 0:
+        return None  # a horizontal intersection, or a wedge that lifts off a plane
     return float(wedge_factor_of_safety(g, friction_angle))
 
 
@@ -140,7 +145,9 @@ def evaluate(scene: dict[str, Any], mode: str, index: int, friction_angle: float
     rec: dict[str, Any] = {"index": index, "friction_angle": float(friction_angle),
                            "analytic_fs": analytic_fs(scene, friction_angle)}
     if mode == "analytic":
-        rec |= {"factor_of_safety": rec["analytic_fs"], "status": "completed"}
+        rec |= {"factor_of_safety": rec["analytic_fs"],
+                "status": "completed" if rec["analytic_fs"] is not None
+                else "not a two-joint wedge (eq. 51 does not apply)"}
     else:
         rec |= dda_fs(scene, friction_angle, should_stop)
     return rec
