@@ -27,6 +27,7 @@ from engine.geometry import (
     polyhedron_problems,
     winding_numbers,
 )
+from engine.kinematics import JointSet, SlopeFace
 from engine.model import (
     AnalysisControls,
     Block,
@@ -735,3 +736,38 @@ def build_model(scene: Scene | str | Path | dict[str, Any]) -> BuildResult:
         factor_of_safety=fos,
         seismic_coefficient=kc,
     )
+
+
+# --------------------------------------------------------------------------- kinematics
+
+
+def kinematic_inputs(scene: Scene | str | Path | dict[str, Any]) -> tuple[list[JointSet],
+                                                                         SlopeFace]:
+    """The joints' orientations and friction angles and the slope face, for
+    :func:`engine.kinematics.kinematic_analysis`; nothing is cut.
+
+    Each joint (a set or a single plane) is one orientation; its friction angle is the
+    `slope_face.friction_angle` when given, else its joint material's. SceneError when the
+    scene has no `slope_face` or no joints.
+    """
+    if not isinstance(scene, Scene):
+        scene = load_scene(scene)
+    p = Problems()
+    face = scene.slope_face
+    if face is None:
+        p.add("slope_face", "kinematic screening needs the slope face: give 'slope_face' "
+              "{\"dip\": degrees, \"dip_direction\": degrees} (optionally 'friction_angle')")
+    if not scene.joints:
+        p.add("joints", "kinematic screening needs joints (their dip and dip direction)")
+    p.raise_if_any()
+    default = scene.joint_materials[scene.default_joint_material].friction_angle
+    sets = [
+        JointSet(
+            name=scene.joint_name(k), dip=float(j.dip), dip_direction=float(j.dip_direction) % 360,
+            friction_angle=None if face.friction_angle is not None else float(
+                scene.joint_materials[j.joint_material or scene.default_joint_material]
+                .friction_angle))
+        for k, j in enumerate(scene.joints)
+    ]
+    phi = face.friction_angle if face.friction_angle is not None else default
+    return sets, SlopeFace(float(face.dip), float(face.dip_direction) % 360, float(phi))

@@ -622,6 +622,49 @@ class AnalysisSpec(_Model):
         return 1.0 if self.mode == "dynamic" else 0.0
 
 
+class SlopeFaceSpec(_Model):
+    """The slope face for kinematic screening (`polydda kinematics`): its dip and dip
+    direction, and optionally one friction angle for every joint in the tests."""
+
+    dip: Annotated[float, Field(gt=0, le=90)] = Field(
+        description="degrees, more than 0 and at most 90 (vertical)")
+    dip_direction: DipDirection = Field(description="degrees clockwise from North")
+    friction_angle: FrictionAngle | None = Field(
+        None, description="degrees; default: each joint's own joint material")
+
+
+class NormalSpec(_Model):
+    """A normally distributed parameter: mean and standard deviation."""
+
+    mean: float
+    sd: Positive
+
+
+class MonteCarloSpec(_Model):
+    """A Monte Carlo sweep (process `sweep`, `polydda sweep`): `n` realisations from `seed`
+    of the joints' friction angle (one value per realisation, truncated to [0°, 90°)), each
+    evaluated by the engine's strength reduction (`dda`) or eq. 51 for a two-joint wedge
+    (`analytic`)."""
+
+    n: Annotated[int, Field(ge=1, le=10_000)] = Field(200, description="realisations")
+    seed: Annotated[int, Field(ge=0)] = Field(0, description="random seed")
+    friction_angle: NormalSpec = Field(description="degrees")
+    mode: Literal["dda", "analytic"] = "dda"
+    realisations: list[Annotated[int, Field(ge=0)]] | None = Field(
+        None, description="evaluate only these realisations (0 to n - 1; a share of the "
+                          "sweep for one job); default all")
+
+    @model_validator(mode="after")
+    def _indices(self) -> MonteCarloSpec:
+        if self.realisations is not None:
+            bad = [k for k in self.realisations if k >= self.n]
+            if bad:
+                raise ValueError(f"realisations must be below n = {self.n} (got {bad[0]})")
+            if len(set(self.realisations)) != len(self.realisations):
+                raise ValueError("realisations are listed twice")
+        return self
+
+
 # --------------------------------------------------------------------------- scene
 
 DEFAULT_MATERIAL_NAME = "rock"
@@ -664,6 +707,11 @@ class Scene(_Model):
     bolt_patterns: list[BoltPatternSpec] = Field(
         default_factory=list, description="grids of identical bolts on a face")
     analysis: AnalysisSpec = Field(default_factory=AnalysisSpec)
+    slope_face: SlopeFaceSpec | None = Field(
+        None, description="the slope face for kinematic screening (not used by runs)")
+    sweep: MonteCarloSpec | None = Field(
+        None, description="a Monte Carlo sweep of the joints' friction angle (process "
+                          "'sweep'; not used by runs)")
 
     @model_validator(mode="after")
     def _defaults(self) -> Scene:

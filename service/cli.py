@@ -25,12 +25,15 @@ from engine.results import ResultWriter
 from engine.simulation import STATUS_COMPLETED, Progress, run
 from schemas.convert import BuildResult, build_model
 from schemas.errors import SceneError
-from schemas.scene import SCHEMA_VERSION, scene_json_schema
+from schemas.scene import SCHEMA_VERSION, load_scene, scene_json_schema
 from service.documents import (
     SEARCH_DISTANCE_RATIO,
     blocks_document,
     fos_controls,
     fos_document,
+    kinematic_result,
+    kinematics_document,
+    kinematics_text,
     run_summary,
     scene_contacts_document,
     seismic_controls,
@@ -326,6 +329,122 @@ def cmd_seismic(args: argparse.Namespace) -> int:
         if result.message:
             print(result.message)
     return EXIT_OK if result.status == STATUS_COMPLETED else EXIT_RUN
+def cmd_kinematics(args: argparse.Namespace) -> int:
+    """Kinematic screening (Markland tests) of the scene's joints against its slope face;
+    with --plot, the equal-area stereonet as a PNG."""
+    result = kinematic_result(Path(args.scene))
+    if args.plot is not None:
+        from engine.stereonet import plot_stereonet
+
+        try:
+            plot_stereonet(result, Path(args.plot), title=Path(args.scene).stem)
+        except OSError as exc:
+            print(f"--plot: cannot write {args.plot}: {exc.strerror or exc}", file=sys.stderr)
+            return EXIT_IO
+    if args.json:
+        _print_json(kinematics_document(result))
+    else:
+        print(kinematics_text(result))
+        if args.plot is not None:
+            print(f"written: {args.plot}")
+    return EXIT_OK
+
+
+def cmd_sweep(args: argparse.Namespace) -> int:
+    """Monte Carlo sweep: N realisations of the joints' friction angle from a seed, a factor
+    of safety each (engine strength reduction or eq. 51), probability of failure."""
+    from service.sweep import SweepSpec, run_sweep
+
+    scene = json.loads(Path(args.scene).read_text(encoding="utf-8"))
+    build_model(scene)  # the scene must be valid before any realisation
+    given = load_scene(scene).sweep
+    options = {"n": args.n, "seed": args.seed, "mode": args.mode,
+               "friction_mean": args.friction_mean, "friction_sd": args.friction_sd}
+    from_scene = {} if given is None else {
+        "n": given.n, "seed": given.seed, "mode": given.mode,
+        "friction_mean": given.friction_angle.mean, "friction_sd": given.friction_angle.sd}
+    values = {k: v if v is not None else from_scene.get(k) for k, v in options.items()}
+    if values["friction_mean"] is None or values["friction_sd"] is None:
+        print("polydda sweep: give --friction-mean and --friction-sd (or the scene's "
+              "sweep.friction_angle)", file=sys.stderr)
+        return EXIT_SCENE
+    try:
+        defaults = {"n": 200, "seed": 0, "mode": "dda"}
+        values = {k: defaults[k] if v is None and k in defaults else v
+                  for k, v in values.items()}
+        spec = SweepSpec(values["n"], values["seed"], values["friction_mean"],
+                         values["friction_sd"], values["mode"])
+    except ValueError as exc:
+        print(f"polydda sweep: {exc}", file=sys.stderr)
+        return EXIT_SCENE
+
+    def note(done: int, n: int, now: int) -> None:
+        if not args.quiet:
+            print(f"realisation {done}/{n} done ({now} evaluated now)", file=sys.stderr,
+                  flush=True)
+
+    if args.server is not None:
+        return _sweep_on_server(args, scene, spec)
+    if spec.mode == "dda" and not args.quiet:
+        _note_compilation()
+    try:
+        doc = run_sweep(scene, spec, Path(args.out), workers=args.workers, progress=note,
+                        limit=args.limit)
+    except ValueError as exc:
+        print(f"polydda sweep: {exc}", file=sys.stderr)
+        return EXIT_SCENE
+    return _print_sweep(args, spec, doc)
+
+
+def _sweep_on_server(args: argparse.Namespace, scene: dict[str, Any], spec: Any) -> int:
+    """`polydda sweep --server URL --jobs K`: the sweep as K jobs of the service, merged."""
+    import httpx
+
+    from service.client import ServiceError, Unreachable, sweep_jobs
+
+    scene = dict(scene, sweep={"n": spec.n, "seed": spec.seed, "mode": spec.mode,
+                               "friction_angle": {"mean": spec.friction_mean,
+                                                  "sd": spec.friction_sd}})
+    headers = {"X-API-Key": args.api_key} if args.api_key else {}
+    last = [-1]
+
+    def note(done: int, n: int, statuses: list[dict[str, Any]]) -> None:
+        if not args.quiet and done != last[0]:
+            last[0] = done
+            states = ", ".join(s["status"] for s in statuses)
+            print(f"{done}/{n} realisations done ({states})", file=sys.stderr, flush=True)
+
+    try:
+        with httpx.Client(base_url=args.server.rstrip("/"), headers=headers,
+                          timeout=60) as client:
+            doc = sweep_jobs(client, scene, args.jobs, Path(args.out), on_progress=note)
+    except httpx.TransportError as exc:
+        print(f"polydda sweep: {Unreachable(str(exc))}", file=sys.stderr)
+        return EXIT_IO
+    except (Unreachable, ServiceError) as exc:
+        print(f"polydda sweep: {exc}", file=sys.stderr)
+        return EXIT_IO if isinstance(exc, Unreachable) else EXIT_SCENE
+    return _print_sweep(args, spec, doc)
+
+
+def _print_sweep(args: argparse.Namespace, spec: Any, doc: dict[str, Any]) -> int:
+    """The sweep's aggregate: JSON (--json) or a few lines."""
+    if args.json:
+        _print_json({k: v for k, v in doc.items() if k != "realisations"})
+        return EXIT_OK
+    for key in dict.fromkeys((spec.mode, "analytic")):
+        a = doc.get(key)
+        if a and a["n"]:
+            lo, hi = a["pof_interval_95"]
+            print(f"{key}: {a['n']} realisations, probability of failure "
+                  f"{100 * a['probability_of_failure']:.2f} % (95 % interval {100 * lo:.1f} to "
+                  f"{100 * hi:.1f} %), FS mean {a['mean']:.4f}, min {a['min']:.4f}")
+    if doc.get("pof_difference") is not None:
+        print(f"PoF difference ({spec.mode} - analytic): "
+              f"{100 * doc['pof_difference']:.2f} percentage points; FS relative difference "
+              f"max {100 * doc['fs_relative_difference']['max_abs']:.2f} %")
+    print(f"written: {Path(args.out) / 'sweep.json'}")
+    return EXIT_OK
 
 
 def _listed(values: list[str] | None) -> list[str] | None:
@@ -473,6 +592,41 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--json", action="store_true", help="print one JSON document")
     p.add_argument("--quiet", action="store_true", help="no progress output")
     p.set_defaults(func=cmd_seismic)
+    p = sub.add_parser("kinematics", help="kinematic screening (Markland tests, stereonet)",
+                       description="planar and wedge sliding, flexural and direct toppling "
+                                   "of the scene's joints against its slope_face")
+    p.add_argument("scene", help="scene JSON file (with a slope_face)")
+    p.add_argument("--json", action="store_true", help="print one JSON document")
+    p.add_argument("--plot", metavar="OUT.png", help="write the stereonet to this PNG file")
+    p.set_defaults(func=cmd_kinematics)
+
+    p = sub.add_parser("sweep", help="Monte Carlo sweep: probability of failure",
+                       description="N realisations of the joints' friction angle (normal, "
+                                   "from a seed); a factor of safety each; re-running with "
+                                   "the same --out skips the realisations already done")
+    p.add_argument("scene", help="scene JSON file")
+    p.add_argument("--n", type=int, help="realisations (default: the scene's sweep.n, or 200)")
+    p.add_argument("--seed", type=int, help="random seed (default: sweep.seed, or 0)")
+    p.add_argument("--friction-mean", type=float, metavar="DEG",
+                   help="mean friction angle (default: sweep.friction_angle.mean)")
+    p.add_argument("--friction-sd", type=float, metavar="DEG",
+                   help="its standard deviation (default: sweep.friction_angle.sd)")
+    p.add_argument("--mode", choices=("dda", "analytic"),
+                   help="dda: the engine's strength reduction per realisation; analytic: "
+                        "eq. 51 (two-joint wedge) only")
+    p.add_argument("--out", required=True, metavar="DIR", help="folder of the sweep")
+    p.add_argument("--workers", type=int, default=1, help="processes (default 1)")
+    p.add_argument("--server", metavar="URL",
+                   help="run the realisations as --jobs jobs of this PolyDDA service "
+                        "(embedded workers or `polydda worker`s) and merge them")
+    p.add_argument("--jobs", type=int, default=2, metavar="K",
+                   help="jobs of the sweep on --server (default 2)")
+    p.add_argument("--api-key", help="API key for --server, if it requires one")
+    p.add_argument("--limit", type=int, metavar="K",
+                   help="evaluate at most K new realisations, then aggregate those done")
+    p.add_argument("--json", action="store_true", help="print the aggregate as JSON")
+    p.add_argument("--quiet", action="store_true", help="no progress output")
+    p.set_defaults(func=cmd_sweep)
 
     p = sub.add_parser("plot", help="PNG plots of a result file")
     p.add_argument("result", help="HDF5 result file")

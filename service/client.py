@@ -144,3 +144,86 @@ def print_status(doc: dict[str, Any]) -> None:
     extra = f" t={doc['simulated_time']:.4g} s" if doc.get("simulated_time") is not None else ""
     msg = f" {doc['message']}" if doc.get("message") else ""
     print(f"{doc['jobID']} {doc['status']} {doc['progress']}%{extra}{msg}", file=sys.stderr)
+
+
+def sweep_jobs(client: httpx.Client, scene: dict[str, Any], shares: int, out: Path, *,
+               retries: int = 5, poll: float = 0.5, resubmit: int = 2,
+               on_progress: Callable[[int, int, list[dict[str, Any]]], None] | None = None,
+               ) -> dict[str, Any]:
+    """Run the scene's sweep as `shares` jobs of process `sweep` (each a share of the
+    realisations) on the server behind `client`, wherever its workers are; merge them.
+
+    Progress of the whole is the realisations done over all jobs; Ctrl-C cancels every job;
+    a job that failed for a system reason (its worker died) is submitted again up to
+    `resubmit` times, and redoes none of the realisations already done (the server keeps
+    them by sweep); `out/jobs.json` remembers the jobs, so a re-run keeps those that
+    succeeded (or still run) and submits again only the others. Writes and returns
+    `out/sweep.json`.
+    """
+    from service.sweep import merge_documents, spec_of_scene
+
+    spec = spec_of_scene(scene)
+    indices = spec.indices()
+    parts = [p for p in (indices[k::max(1, shares)] for k in range(max(1, shares))) if p]
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    state_path = out / "jobs.json"
+    urls: list[str | None] = [None] * len(parts)
+    if state_path.is_file():
+        state = json.loads(state_path.read_text())
+        if state.get("scene") == scene and state.get("parts") == parts:
+            urls = state["urls"]
+
+    def save() -> None:
+        state_path.write_text(json.dumps({"scene": scene, "parts": parts, "urls": urls}))
+
+    for k, part in enumerate(parts):
+        if urls[k] is not None:
+            r = client.get(urls[k])
+            if r.status_code == 200 and r.json()["status"] in ("successful", "accepted",
+                                                                "running"):
+                continue
+        child = json.loads(json.dumps(scene))
+        child["sweep"]["realisations"] = part
+        r = _check(post_with_retries(client, "/jobs", json.dumps(child).encode(),
+                                     {"process": "sweep"}, retries))
+        urls[k] = r.headers["Location"]
+        save()
+    save()
+    tries = [1] * len(parts)
+    try:
+        while True:
+            statuses = [_check(client.get(u)).json() for u in urls]
+            for k, st in enumerate(statuses):  # a share whose worker died: once more
+                if st["status"] == "failed" and st.get("error_kind") == "system" \
+                        and tries[k] < resubmit + 1:
+                    tries[k] += 1
+                    child = json.loads(json.dumps(scene))
+                    child["sweep"]["realisations"] = parts[k]
+                    r = _check(post_with_retries(client, "/jobs", json.dumps(child).encode(),
+                                                 {"process": "sweep"}, retries))
+                    urls[k] = r.headers["Location"]
+                    statuses[k] = r.json()
+                    save()
+            done = sum(int(s.get("step") or 0) if s["status"] != "successful" else len(p)
+                       for s, p in zip(statuses, parts, strict=True))
+            if on_progress is not None:
+                on_progress(done, len(indices), statuses)
+            if all(s["status"] in FINAL for s in statuses):
+                break
+            time.sleep(poll)
+    except KeyboardInterrupt:
+        for u in urls:
+            client.delete(u)
+        raise
+    docs = [_check(client.get(u + "/results")).json()["sweep"]
+            for u, s in zip(urls, statuses, strict=True) if s["status"] == "successful"]
+    if not docs:
+        raise ServiceError({"detail": "no job of the sweep succeeded: " + "; ".join(
+            s.get("message") or s["status"] for s in statuses)})
+    doc = merge_documents(docs)
+    doc["jobs"] = [{"url": u, "status": s["status"], "message": s.get("message"),
+                    "realisations": len(p)} for u, s, p in zip(urls, statuses, parts,
+                                                              strict=True)]
+    (out / "sweep.json").write_text(json.dumps(doc, indent=2, allow_nan=False) + "\n")
+    return doc

@@ -5,7 +5,7 @@ result), the run summary (the engine's, with the scene's block names and every w
 the build's and the engine's), strength-reduction controls read from the scene (watched
 blocks, weakened joint materials) and the factor-of-safety document. `polydda blocks /
 contacts / run / fos` print or write these; the service's jobs write the same ones, so
-the two cannot drift apart.
+the two cannot drift apart. The kinematic screening document (Markland tests) too.
 """
 
 from __future__ import annotations
@@ -29,6 +29,7 @@ if TYPE_CHECKING:
         StrengthReductionControls,
     )
     from engine.geometry import Polyhedron
+    from engine.kinematics import KinematicResult
     from engine.results import Result
     from schemas.convert import BuildResult
 
@@ -273,3 +274,49 @@ def seismic_document(result: SeismicCoefficientResult, build: BuildResult) -> di
     doc["watch_blocks"] = [build.block_names[k] for k in watched]
     doc["warnings"] = list(build.warnings)
     return finite(doc)
+# --------------------------------------------------------------------------- kinematics
+
+
+def kinematic_result(scene: Any) -> KinematicResult:
+    """Markland tests of the scene's joints against its `slope_face` (a Scene, path, JSON
+    text or dict; SceneError without a slope face or joints). Nothing is cut."""
+    from engine.kinematics import kinematic_analysis
+    from schemas.convert import kinematic_inputs
+
+    sets, face = kinematic_inputs(scene)
+    return kinematic_analysis(sets, face)
+
+
+def kinematics_document(result: KinematicResult) -> dict[str, Any]:
+    """The kinematic screening answer: slope face, sets, lateral limits, every test of every
+    set and pair with its conditions, and the admissible sets / pairs per failure mode."""
+    return finite(result.as_dict())
+
+
+def kinematics_text(result: KinematicResult) -> str:
+    """A short plain-text report: admissible modes, then each test's failed conditions."""
+    s = result.slope
+    lines = [f"slope face {s.dip:g}/{s.dip_direction:03g}, friction angle {s.friction_angle:g}°"
+             f" (joints with their own joint material's φ use it)",
+             f"lateral limits: planar ±{result.limits.planar:g}°, flexural toppling "
+             f"±{result.limits.flexural_toppling:g}°, direct toppling "
+             f"±{result.limits.direct_toppling:g}°"]
+    for w in result.wedge:
+        if w.trend is not None:
+            lines.append(f"intersection {w.sets[0]}/{w.sets[1]}: trend {w.trend:.2f}°, "
+                         f"plunge {w.plunge:.2f}°")
+    groups = (("planar sliding", result.planar, lambda r: r.set),
+              ("wedge sliding", result.wedge, lambda r: "/".join(r.sets)),
+              ("flexural toppling", result.flexural_toppling, lambda r: r.set),
+              ("direct toppling", result.direct_toppling, lambda r: "/".join(r.sets)))
+    for title, rows, name in groups:
+        ok = [name(r) for r in rows if r.admissible]
+        lines.append(f"{title}: " + (", ".join(ok) + " admissible" if ok else "none admissible"))
+        for r in rows:
+            if r.admissible:
+                extra = f" (slides on {r.sliding_on})" if getattr(r, "sliding_on", None) else ""
+                lines.append(f"  {name(r)}: admissible{extra}")
+            else:
+                why = "; ".join(f"{c.test}: {c.detail}" for c in r.conditions if not c.passed)
+                lines.append(f"  {name(r)}: no ({why})")
+    return "\n".join(lines)

@@ -48,8 +48,9 @@ def execute(process: str, scene_text: str, job_dir: Path, ctx: TaskContext) -> O
     if ctx.should_stop():
         return Outcome("dismissed", "cancelled before it started")
     try:
-        build = build_model(json.loads(scene_text))
-        return PROCESSES[process].run(build, scene_text, job_dir, ctx)
+        p = PROCESSES[process]
+        build = build_model(json.loads(scene_text)) if p.needs_model else None
+        return p.run(build, scene_text, job_dir, ctx)
     except SceneError as exc:
         return Outcome("failed", "model problem: the scene is invalid: "
                        + "; ".join(exc.lines()), MODEL)

@@ -12,7 +12,7 @@ from __future__ import annotations
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING, Literal
+from typing import TYPE_CHECKING, Any, Literal
 
 from service.documents import (
     blocks_document,
@@ -31,8 +31,10 @@ if TYPE_CHECKING:
 
 #: the HDF5 result of a simulation
 RESULT_FILE = "result.h5"
+#: folder of the data directory where sweep jobs keep realisation records, by population
+SWEEPS_DIR = "sweeps"
 
-Runner = Callable[["BuildResult", str, Path, TaskContext], Outcome]
+Runner = Callable[["BuildResult | None", str, Path, TaskContext], Outcome]
 
 
 @dataclass(frozen=True)
@@ -50,6 +52,10 @@ class Process:
     #: the scene `analysis.type` for which this is the default process of POST /jobs
     analysis_type: str | None
     run: Runner
+    #: whether the runner needs the built model (cut blocks); else it gets None
+    needs_model: bool = True
+    #: extra check of a validated Scene at submission (raises SceneError), if any
+    check: Callable[[Any], Any] | None = None
 
 
 def _simulation(build: BuildResult, scene_text: str, job_dir: Path,
@@ -141,6 +147,62 @@ def _critical_seismic(build: BuildResult, scene_text: str, job_dir: Path,
                        f"{result.critical_coefficient:.4g}"
                        + (f" ({result.message})" if result.message else ""))
     return Outcome("failed", f"model problem: {result.message}", MODEL)
+def _kinematics(build: BuildResult | None, scene_text: str, job_dir: Path,
+                ctx: TaskContext) -> Outcome:
+    import time
+
+    from engine.stereonet import plot_stereonet
+    from service.documents import kinematic_result, kinematics_document
+
+    start = time.perf_counter()
+    result = kinematic_result(scene_text)
+    write_json_atomic(job_dir / "kinematics.json", kinematics_document(result))
+    plot_stereonet(result, job_dir / "stereonet.png")
+    ctx.report(100.0, force=True)
+    found = [f"{len(v)} {k.replace('_', ' ')}" for k, v in result.admissible().items() if v]
+    return Outcome("successful", "admissible: " + (", ".join(found) if found else "none")
+                   + f" (screened in {time.perf_counter() - start:.2f} s)")
+
+
+def _kinematics_check(scene: Any) -> None:
+    from schemas.convert import kinematic_inputs
+
+    kinematic_inputs(scene)
+
+
+def _sweep(build: BuildResult | None, scene_text: str, job_dir: Path,
+           ctx: TaskContext) -> Outcome:
+    import json
+
+    from service.sweep import run_sweep, spec_of_scene
+
+    scene = json.loads(scene_text)
+    spec = spec_of_scene(scene)
+
+    def progress(done: int, n: int, now: int) -> None:
+        ctx.report(100.0 * done / n, force=True, step=done,
+                   message=f"{done} of {n} realisations done")
+
+    ctx.report(0.0, force=True, step=0,
+               message=f"0 of {len(spec.indices())} realisations done")
+    # realisation files in DATA_DIR/sweeps/<population>/ (job_dir is DATA_DIR/jobs/<id>):
+    # a job resubmitted after its worker died, or another share, skips those already done
+    doc = run_sweep(scene, spec, job_dir, progress=progress, should_stop=ctx.should_stop,
+                    shared=job_dir.parent.parent / SWEEPS_DIR)
+    a = doc[spec.mode]
+    pof = "none evaluated" if not a["n"] else (
+        f"probability of failure {100 * a['probability_of_failure']:.2f} % over {a['n']}")
+    share = len(spec.indices())
+    if doc["done"] < share:
+        return Outcome("dismissed", f"cancelled after {doc['done']} of {share} "
+                                    f"realisations; {pof} (partial aggregate kept)")
+    return Outcome("successful", f"{spec.mode}: {pof} realisations")
+
+
+def _sweep_check(scene: Any) -> None:
+    from service.sweep import spec_of_scene
+
+    spec_of_scene(scene.model_dump(mode="json", exclude_none=True))
 
 
 def _block_cutting(build: BuildResult, scene_text: str, job_dir: Path,
@@ -173,6 +235,23 @@ PROCESSES: dict[str, Process] = {p.id: p for p in (
             "Cut the domain by the joints and list the blocks (volume, centroid, vertices, "
             "faces); nothing is run.",
             ("blocks.json",), "blocks.json", "blocks", None, _block_cutting),
+    Process("kinematics", "Kinematic screening (Markland tests)",
+            "Test the scene's joints against its slope_face for planar sliding, wedge "
+            "sliding (every pair), flexural and direct toppling; list the admissible sets "
+            "and pairs and draw the equal-area stereonet (stereonet.png); nothing is run.",
+            ("kinematics.json", "stereonet.png"), "kinematics.json", "kinematics", None,
+            _kinematics, needs_model=False, check=_kinematics_check),
+    Process("sweep", "Monte Carlo sweep (probability of failure)",
+            "Draw the scene's sweep.n realisations of the joints' friction angle from "
+            "sweep.seed; find each one's factor of safety (the engine's strength reduction, "
+            "or eq. 51 for a two-joint wedge with mode 'analytic'); aggregate the "
+            "probability of failure, FS histogram and CDF and the sensitivity to φ, beside "
+            "eq. 51 over the same realisations. Progress counts realisations; a cancelled "
+            "job keeps the aggregate of those done. sweep.realisations makes a job one "
+            "share of a sweep (polydda sweep --server URL --jobs K fans a sweep out so); "
+            "realisation records are kept by sweep in the data directory, so a job "
+            "resubmitted after its worker died redoes none that were done.",
+            ("sweep.json",), "sweep.json", "sweep", None, _sweep, check=_sweep_check),
 )}
 PROCESS_IDS: tuple[str, ...] = tuple(PROCESSES)
 #: the process ids as a type (query parameters, OpenAPI enums)

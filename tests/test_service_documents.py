@@ -48,7 +48,7 @@ def two_cubes_fos_scene() -> dict[str, Any]:
 
 def test_process_registry_is_the_one_list() -> None:
     assert PROCESS_IDS == ("simulation", "factor-of-safety", "critical-seismic-coefficient",
-                           "block-cutting")
+                           "block-cutting", "kinematics", "sweep")
     assert default_process("factor_of_safety") == "factor-of-safety"
     assert default_process("critical_seismic_coefficient") == "critical-seismic-coefficient"
     assert default_process("simulation") == "simulation"

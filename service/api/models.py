@@ -12,7 +12,7 @@ from service.backends.store import JobRecord
 from service.processes import PROCESSES, RESULT_FILE
 
 Status = Literal["accepted", "running", "successful", "failed", "dismissed"]
-FILE_TYPES = {".h5": "application/x-hdf5", ".json": "application/json"}
+FILE_TYPES = {".h5": "application/x-hdf5", ".json": "application/json", ".png": "image/png"}
 
 
 class Link(BaseModel):

@@ -137,6 +137,13 @@ def submit(process: str | None, data: Any, *, settings: Settings, store: JobStor
     with _VALIDATION_SLOTS:
         scene = validate_scene(scene_data, settings)
     process = process or body_process or default_process(scene.analysis.type)
+    if PROCESSES[process].check is not None:  # e.g. kinematics needs a slope face
+        from schemas.errors import SceneError
+
+        try:
+            PROCESSES[process].check(scene)
+        except SceneError as exc:
+            raise invalid_scene(exc.problems) from None
     text = json.dumps(scene_data, ensure_ascii=False, separators=(",", ":"))
     digest = hashlib.sha256(f"{process}\n{text}".encode()).hexdigest()
     check_disk(settings)
