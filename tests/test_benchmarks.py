@@ -67,3 +67,39 @@ def test_components_section_cuts_and_reports() -> None:
     assert "## 6. Cutting and contact detection" in text
     assert f"| 40 | {planes} | {len(blocks)} |" in text
     assert "p = 1.00" in text and "numpy implementation: 54.6" in text
+
+
+def test_stability_map_v2_verdicts() -> None:
+    """benchmarks/trust.py: the cube on the φ 35° incline set exactly on the slab and the
+    stack of ten dropped 1 mm stay put with no energy created; the verdicts name a
+    completed run outside tolerance a silent failure, a `failed` run with a reason a clean
+    stop, a cancelled one stopped."""
+    from types import SimpleNamespace
+
+    import numpy as np
+
+    from benchmarks.trust import (
+        FAILED,
+        MAP_SCENES,
+        PASS,
+        STOPPED,
+        WRONG,
+        run_map_one,
+        verdict_of,
+    )
+
+    exact = run_map_one(MAP_SCENES["incline35"], 1e-2, 1e11, "exact")
+    assert exact["verdict"] == PASS and abs(exact["metric"]) < 1e-4
+    assert exact["created_ratio"] <= 5e-3
+    stack = run_map_one(MAP_SCENES["stack10_starts"], 1e-2, 1e11, "drop 1 mm")
+    assert stack["verdict"] == PASS
+
+    def outcome(status: str, message: str = "") -> SimpleNamespace:
+        state = SimpleNamespace(centroid=np.zeros((2, 3)))
+        return SimpleNamespace(status=status, message=message,
+                               result=SimpleNamespace(state=state))
+
+    assert verdict_of(outcome("completed"), within=False, created_ok=True) == WRONG
+    assert verdict_of(outcome("completed"), within=True, created_ok=False) == WRONG
+    assert verdict_of(outcome("failed", "penetration"), within=False, created_ok=True) == FAILED
+    assert verdict_of(outcome("cancelled"), within=False, created_ok=True) == STOPPED
