@@ -331,6 +331,19 @@ COLOURS = {PASS: "tab:green", WRONG: "tab:orange", FAILED: "tab:blue", BLEW_UP: 
            STOPPED: "tab:gray"}
 
 
+def _verdict_panel(ax: Any, rows: list[dict[str, Any]], x: str, y: str, title: str,
+                   xlabel: str, ylabel: str) -> None:
+    """One log-log panel of runs, a square per run coloured by its verdict."""
+    for r in rows:
+        ax.scatter(r[x], r[y], s=110, marker="s", color=COLOURS[r["verdict"]])
+    ax.set_xscale("log")
+    ax.set_yscale("log")
+    ax.set_title(title, fontsize=9)
+    ax.set_xlabel(xlabel, fontsize=8)
+    ax.set_ylabel(ylabel, fontsize=8)
+    ax.tick_params(labelsize=7)
+
+
 def plot_trust(out: Path, data: dict[str, Any]) -> str:
     """One panel per map scene × start (penalty against Δt, coloured by verdict) and one per
     example sweep. Also writes trust.csv."""
@@ -347,33 +360,17 @@ def plot_trust(out: Path, data: dict[str, Any]) -> str:
                              squeeze=False)
     for i, n in enumerate(scenes):
         for j, s in enumerate(starts):
-            ax = axes[i, j]
-            for r in data["rows"]:
-                if r["case"] == n and r["start"] == s:
-                    ax.scatter(r["dt"], r["penalty"], s=110, marker="s",
-                               color=COLOURS[r["verdict"]])
-            ax.set_xscale("log")
-            ax.set_yscale("log")
-            ax.set_title(f"{n}: {s}", fontsize=9)
-            ax.set_xlabel("Δt (s)", fontsize=8)
-            ax.set_ylabel("penalty (N/m)", fontsize=8)
-            ax.tick_params(labelsize=7)
+            _verdict_panel(axes[i, j], [r for r in data["rows"]
+                                        if r["case"] == n and r["start"] == s],
+                           "dt", "penalty", f"{n}: {s}", "Δt (s)", "penalty (N/m)")
     ex = [n for n in EXAMPLE_SWEEPS if any(r["case"] == n for r in data["rows"])]
     for j in range(len(starts)):
-        ax = axes[-1, j]
         if j < len(ex):
-            for r in data["rows"]:
-                if r["case"] == ex[j]:
-                    ax.scatter(r["dt_factor"], r["k_factor"], s=110, marker="s",
-                               color=COLOURS[r["verdict"]])
-            ax.set_xscale("log")
-            ax.set_yscale("log")
-            ax.set_title(f"{ex[j]}: factors of its own", fontsize=9)
-            ax.set_xlabel("Δt factor", fontsize=8)
-            ax.set_ylabel("penalty factor", fontsize=8)
-            ax.tick_params(labelsize=7)
+            _verdict_panel(axes[-1, j], [r for r in data["rows"] if r["case"] == ex[j]],
+                           "dt_factor", "k_factor", f"{ex[j]}: factors of its own",
+                           "Δt factor", "penalty factor")
         else:
-            ax.axis("off")
+            axes[-1, j].axis("off")
     for v, c in COLOURS.items():
         axes[-1, -1].scatter([], [], color=c, marker="s", label=v)
     axes[-1, -1].legend(fontsize=8, loc="center")

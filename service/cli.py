@@ -14,7 +14,7 @@ import json
 import os
 import sys
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -281,18 +281,25 @@ def _note_compilation() -> None:
               "takes about a minute longer (they are cached afterwards)", file=sys.stderr)
 
 
-def cmd_fos(args: argparse.Namespace) -> int:
-    """Factor of safety by strength reduction (bisection on tan φ / F)."""
-    built = _load(args.scene)
+def _trial_printer(args: argparse.Namespace, factor: str) -> Callable[[TrialRun], None]:
+    """The progress line of a bisection trial (`factor` formats the value tried), printed
+    to stderr unless --quiet; says first when the kernels still have to compile."""
+    if not args.quiet:
+        _note_compilation()
 
     def note(r: TrialRun) -> None:
         if not args.quiet:
             verdict = "fails" if r.failed else "holds"
-            print(f"F = {r.factor:.4f}: {verdict} (mean acceleration "
+            print(f"{factor.format(r.factor)}: {verdict} (mean acceleration "
                   f"{r.mean_acceleration:.3g} m/s²)", file=sys.stderr, flush=True)
 
-    if not args.quiet:
-        _note_compilation()
+    return note
+
+
+def cmd_fos(args: argparse.Namespace) -> int:
+    """Factor of safety by strength reduction (bisection on tan φ / F)."""
+    built = _load(args.scene)
+    note = _trial_printer(args, "F = {:.4f}")
     result = factor_of_safety(built.model, fos_controls(built), progress=note)
     doc = fos_document(result, built)
     if args.json:
@@ -309,15 +316,7 @@ def cmd_fos(args: argparse.Namespace) -> int:
 def cmd_seismic(args: argparse.Namespace) -> int:
     """Critical (yield) seismic coefficient by bisection on kh."""
     built = _load(args.scene)
-
-    def note(r: TrialRun) -> None:
-        if not args.quiet:
-            verdict = "fails" if r.failed else "holds"
-            print(f"kh = {r.factor:.5f}: {verdict} (mean acceleration "
-                  f"{r.mean_acceleration:.3g} m/s²)", file=sys.stderr, flush=True)
-
-    if not args.quiet:
-        _note_compilation()
+    note = _trial_printer(args, "kh = {:.5f}")
     result = critical_seismic_coefficient(built.model, seismic_controls(built), progress=note)
     doc = seismic_document(result, built)
     if args.json:
@@ -329,6 +328,8 @@ def cmd_seismic(args: argparse.Namespace) -> int:
         if result.message:
             print(result.message)
     return EXIT_OK if result.status == STATUS_COMPLETED else EXIT_RUN
+
+
 def cmd_kinematics(args: argparse.Namespace) -> int:
     """Kinematic screening (Markland tests) of the scene's joints against its slope face;
     with --plot, the equal-area stereonet as a PNG."""

@@ -86,67 +86,59 @@ def _simulation(build: BuildResult, scene_text: str, job_dir: Path,
     return Outcome("failed", f"model problem: {res.message}", MODEL)
 
 
-def _factor_of_safety(build: BuildResult, scene_text: str, job_dir: Path,
-                      ctx: TaskContext) -> Outcome:
-    from engine.analyses import TrialRun, factor_of_safety
+def _bisection_job(build: BuildResult, job_dir: Path, ctx: TaskContext, artifact: str,
+                   analysis: Callable[..., Any], controls: Any,
+                   document: Callable[[Any, BuildResult], dict[str, Any]], trial_label: str,
+                   answer: Callable[[Any], str]) -> Outcome:
+    """A bisection analysis as a job (factor of safety, critical seismic coefficient):
+    progress per trial, cancel between trials with the trials so far kept in `artifact`,
+    the analysis's document written atomically; `answer(result)` names its number."""
+    from engine.analyses import TrialRun
 
-    controls = fos_controls(build)
     runs: list[TrialRun] = []
 
     def progress(r: TrialRun) -> None:
         runs.append(r)
         verdict = "fails" if r.failed else "holds"
         ctx.report(100.0 * len(runs) / controls.max_runs, force=True, step=len(runs),
-                   message=f"trial {len(runs)}: reduction factor {r.factor:.4g} {verdict}")
+                   message=f"trial {len(runs)}: {trial_label} {r.factor:.4g} {verdict}")
         if ctx.should_stop():
             raise Cancelled
 
     ctx.report(0.0, force=True, message="first trial running")
     try:
-        result = factor_of_safety(build.model, controls, progress=progress)
+        result = analysis(build.model, controls, progress=progress)
     except Cancelled:
-        write_json_atomic(job_dir / "fos.json", finite({
+        write_json_atomic(job_dir / artifact, finite({
             "status": "cancelled", "runs": [r.__dict__ for r in runs],
             "message": f"cancelled after {len(runs)} trials"}))
         return Outcome("dismissed", f"cancelled after {len(runs)} trials; partial results kept")
-    write_json_atomic(job_dir / "fos.json", fos_document(result, build))
+    write_json_atomic(job_dir / artifact, document(result, build))
     ctx.report(100.0, force=True, step=len(result.runs))
     if result.status == "completed":
-        return Outcome("successful", f"factor of safety {result.factor_of_safety:.4g}"
+        return Outcome("successful", answer(result)
                        + (f" ({result.message})" if result.message else ""))
     return Outcome("failed", f"model problem: {result.message}", MODEL)
+
+
+def _factor_of_safety(build: BuildResult, scene_text: str, job_dir: Path,
+                      ctx: TaskContext) -> Outcome:
+    from engine.analyses import factor_of_safety
+
+    return _bisection_job(build, job_dir, ctx, "fos.json", factor_of_safety,
+                          fos_controls(build), fos_document, "reduction factor",
+                          lambda r: f"factor of safety {r.factor_of_safety:.4g}")
 
 
 def _critical_seismic(build: BuildResult, scene_text: str, job_dir: Path,
                       ctx: TaskContext) -> Outcome:
-    from engine.analyses import TrialRun, critical_seismic_coefficient
+    from engine.analyses import critical_seismic_coefficient
 
-    controls = seismic_controls(build)
-    runs: list[TrialRun] = []
+    return _bisection_job(build, job_dir, ctx, "seismic.json", critical_seismic_coefficient,
+                          seismic_controls(build), seismic_document, "kh",
+                          lambda r: f"critical seismic coefficient {r.critical_coefficient:.4g}")
 
-    def progress(r: TrialRun) -> None:
-        runs.append(r)
-        verdict = "fails" if r.failed else "holds"
-        ctx.report(100.0 * len(runs) / controls.max_runs, force=True, step=len(runs),
-                   message=f"trial {len(runs)}: kh {r.factor:.4g} {verdict}")
-        if ctx.should_stop():
-            raise Cancelled
 
-    ctx.report(0.0, force=True, message="first trial running")
-    try:
-        result = critical_seismic_coefficient(build.model, controls, progress=progress)
-    except Cancelled:
-        write_json_atomic(job_dir / "seismic.json", finite({
-            "status": "cancelled", "runs": [r.__dict__ for r in runs],
-            "message": f"cancelled after {len(runs)} trials"}))
-        return Outcome("dismissed", f"cancelled after {len(runs)} trials; partial results kept")
-    write_json_atomic(job_dir / "seismic.json", seismic_document(result, build))
-    ctx.report(100.0, force=True, step=len(result.runs))
-    if result.status == "completed":
-        return Outcome("successful", f"critical seismic coefficient "
-                       f"{result.critical_coefficient:.4g}"
-                       + (f" ({result.message})" if result.message else ""))
-    return Outcome("failed", f"model problem: {result.message}", MODEL)
 def _kinematics(build: BuildResult | None, scene_text: str, job_dir: Path,
                 ctx: TaskContext) -> Outcome:
     import time
