@@ -6,7 +6,10 @@ and, per recorded step of a range, each block's rigid motion as float32: `displa
 (m, n, 3)` of its centroid, `rotation (m, n, 4)` a quaternion (x, y, z, w; the rotation of
 the polar decomposition of the recorded affine map) and `velocity (m, n, 3)` of its
 centroid. A vertex moves to `c0 + d + R (X0 - c0)`. Optional contacts: `contact_offsets
-(m+1,)`, `contact_point (c, 3)` (mid-points, relative to `origin`), `contact_mode (c,)`.
+(m+1,)`, `contact_point (c, 3)` (mid-points, relative to `origin`), `contact_mode (c,)`,
+`contact_normal (c, 3)` (unit, from block j into block i) and `contact_force (c,)` (normal
+force N, compression positive, on block i along the normal; 0 where the run recorded none,
+and header `contact_forces` false when no force of the range was recorded).
 
 Binary layout (`encode_binary`): uint32 header length L, L bytes of UTF-8 JSON (padded with
 spaces so the arrays start 8-byte aligned), then the arrays, each 8-byte aligned, array `name` at
@@ -231,18 +234,34 @@ def frames(result: Result, start: int = 0, stop: int | None = None, stride: int 
     out.arrays["rotation"] = _quaternions(affine).astype("<f4")
     out.arrays["velocity"] = velocity.astype("<f4")
     if contacts and result.contacts_recorded:
-        offs, points, modes = [0], [], []
-        for k in idx:
-            c = result.contacts(int(k))
-            points.append((c["point_i"] + c["point_j"]) / 2 - origin)
-            modes.append(c["mode"])
-            offs.append(offs[-1] + len(c["mode"]))
-        out.arrays["contact_offsets"] = np.asarray(offs, "<u4")
-        out.arrays["contact_point"] = (np.concatenate(points) if points
-                                       else np.zeros((0, 3))).astype("<f4")
-        out.arrays["contact_mode"] = (np.concatenate(modes) if modes
-                                      else np.zeros(0)).astype("<i1")
+        out.header["contact_forces"] = _contacts(result, idx, origin, out.arrays)
     return out
+
+
+def _contacts(result: Result, idx: np.ndarray, origin: np.ndarray,
+              arrays: dict[str, np.ndarray]) -> bool:
+    """Put the contacts of recorded steps `idx` into `arrays` (mid-points, modes, normals,
+    normal forces); whether any normal force was recorded (NaN in the file: not)."""
+    offs, points, modes, normals, forces = [0], [], [], [], []
+    for k in idx:
+        c = result.contacts(int(k))
+        points.append((c["point_i"] + c["point_j"]) / 2 - origin)
+        modes.append(c["mode"])
+        normals.append(c["normal"])
+        forces.append(c["normal_force"])
+        offs.append(offs[-1] + len(c["mode"]))
+
+    def joined(parts: list[np.ndarray], shape: tuple[int, ...], dtype: str) -> np.ndarray:
+        return (np.concatenate(parts) if parts else np.zeros(shape)).astype(dtype)
+
+    force = joined(forces, (0,), "<f8")
+    recorded = np.isfinite(force)
+    arrays["contact_offsets"] = np.asarray(offs, "<u4")
+    arrays["contact_point"] = joined(points, (0, 3), "<f4")
+    arrays["contact_mode"] = joined(modes, (0,), "<i1")
+    arrays["contact_normal"] = joined(normals, (0, 3), "<f4")
+    arrays["contact_force"] = np.where(recorded, force, 0.0).astype("<f4")
+    return bool(recorded.any())
 
 
 def geometry_origin(result: Result) -> np.ndarray:

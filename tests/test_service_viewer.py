@@ -99,6 +99,34 @@ def test_frames_hold_the_geometry_once_and_the_motion_per_step(cube_job: Any) ->
     assert empty.header["count"] == 0 and empty.arrays["displacement"].shape == (0, 2, 3)
 
 
+def test_frames_carry_each_steps_contacts_with_normals_and_forces(cube_job: Any) -> None:
+    """contacts=true: per step the contacts' mid-points, modes, unit normals and normal
+    forces as the result file has them; the cube at rest is carried by its weight."""
+    c, url, h5 = cube_job
+    p = decode_binary(c.get(url + "/results/frames",
+                            params={"start": 9, "stop": 11, "contacts": "true"}).content)
+    a = p.arrays
+    assert p.header["contact_forces"] is True
+    offs = a["contact_offsets"].astype(int)
+    assert len(offs) == 3 and a["contact_normal"].shape == (offs[-1], 3)
+    with open_result(h5) as r:
+        for f, k in enumerate((9, 10)):
+            rows = slice(offs[f], offs[f + 1])
+            rec = r.contacts(k)
+            np.testing.assert_allclose(a["contact_force"][rows], rec["normal_force"],
+                                       rtol=1e-6)
+            np.testing.assert_allclose(a["contact_normal"][rows], rec["normal"], atol=1e-6)
+            np.testing.assert_array_equal(a["contact_mode"][rows], rec["mode"])
+            mid = (rec["point_i"] + rec["point_j"]) / 2 - p.header["origin"]
+            np.testing.assert_allclose(a["contact_point"][rows], mid, atol=1e-5)
+            # the normal forces carry the cube: their vertical sum is its weight (2600 kg)
+            up = (a["contact_force"][rows, None] * a["contact_normal"][rows]).sum(axis=0)
+            assert abs(up[2]) == pytest.approx(2600 * 9.81, rel=1e-3)
+    js = c.get(url + "/results/frames", params={"start": 10, "stop": 11, "contacts": "true",
+                                                "format": "json"}).json()
+    assert len(js["contact_force"]) == len(js["contact_mode"]) == offs[2] - offs[1]
+
+
 @pytest.mark.parametrize("query, loc", [
     ("start=12", "query.start"), ("start=5&stop=2", "query.start"),
     ("stride=0", "query.stride"), ("start=-1", "query.start"), ("stop=x", "query.stop"),

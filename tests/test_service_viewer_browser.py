@@ -102,7 +102,6 @@ def test_wedge_viewer_draws_animates_and_picks(served: Any) -> None:
         page.check("#joints")
         page.focus("#slider")
         page.keyboard.press("End")
-        shot(page, "viewer.png")
         with page.expect_download() as download:
             page.click("#save")
         assert download.value.suggested_filename.endswith("-step200.png")
@@ -111,6 +110,47 @@ def test_wedge_viewer_draws_animates_and_picks(served: Any) -> None:
                                timeout=10_000)
         page.click("#play")
         page.wait_for_function("polydda.frame >= 2 && polydda.frame < 20", timeout=10_000)
+    finally:
+        page.close()
+    assert bad == []
+
+
+def test_contacts_toggle_shows_the_steps_contacts_and_forces(served: Any) -> None:
+    """Ticking "contacts" draws the shown step's contacts and puts their count (by mode)
+    and the largest normal force on the page, as the result file has them; unticking
+    hides them."""
+    import numpy as np
+
+    from engine.results import open_result
+
+    server, job, _, _ = served
+    with open_result(server.data_dir / "jobs" / job / "result.h5") as r:
+        last = r.contacts(r.n_steps - 1)
+    modes = {m: int((last["mode"] == k).sum()) for k, m in enumerate(("open", "locked",
+                                                                       "sliding"))}
+    page, bad = open_page(served, f"/jobs/{job}/viewer")
+    try:
+        page.wait_for_function("window.polydda && window.polydda.ready", timeout=20_000)
+        assert page.inner_text("#contact-count") == ""
+        assert page.evaluate("polydda.contactCount") is None
+        page.check("#contacts")
+        page.wait_for_function("polydda.contactCount != null", timeout=10_000)
+        n = len(last["mode"])
+        assert n > 0 and page.evaluate("polydda.contactCount") == n
+        assert page.evaluate("polydda.contactModes") == modes
+        text = page.inner_text("#contact-count")
+        assert text.startswith(f"{n} contacts ({modes['open']} open, {modes['locked']} "
+                               f"locked, {modes['sliding']} sliding)"), text
+        assert "normal force, longest" in text
+        page.evaluate("polydda.pick(1)")  # the wedge's panel, for the screenshot
+        page.check("#joints")
+        shot(page, "viewer.png")
+        page.uncheck("#joints")
+        assert page.evaluate("polydda.maxNormalForce") == pytest.approx(
+            float(np.max(last["normal_force"])), rel=1e-6)
+        page.uncheck("#contacts")
+        assert page.inner_text("#contact-count") == ""
+        assert page.evaluate("polydda.contactCount") is None
     finally:
         page.close()
     assert bad == []

@@ -126,8 +126,14 @@ function build(head, a) {
   }
   joints.visible = false;
   scene.add(joints);
-  const contacts = new THREE.Points(new THREE.BufferGeometry(), new THREE.PointsMaterial({
-    size: 6, sizeAttenuation: false, vertexColors: true }));
+  // contacts drawn through the blocks (they lie on faces, the force arrows inside blocks)
+  const contacts = new THREE.Group();
+  contacts.add(new THREE.Points(new THREE.BufferGeometry(), new THREE.PointsMaterial({
+    size: 6, sizeAttenuation: false, vertexColors: true, depthTest: false })));
+  contacts.add(new THREE.LineSegments(new THREE.BufferGeometry(), new THREE.LineBasicMaterial({
+    color: 0xc2185b, depthTest: false })));
+  contacts.renderOrder = 10;
+  contacts.children.forEach((c) => { c.renderOrder = 10; });
   contacts.visible = false;
   scene.add(contacts);
   // camera: the bounding sphere (radius r) fills the view, seen from the south-west, above
@@ -215,21 +221,59 @@ function draw(k) {
   dirty = true;
 }
 
+const MODE_NAMES = ["open", "locked", "sliding"];
+const MODE_RGB = [[0.55, 0.55, 0.55], [0.15, 0.4, 0.95], [0.95, 0.45, 0.1]];
+
 function drawContacts(k) {
-  const c = $("contacts").checked ? g.contactCache.get(g.index[k]) : null;
+  const on = $("contacts").checked;
+  const c = on ? g.contactCache.get(g.index[k]) : null;
   g.contacts.visible = !!c;
   if (!c) {
-    if ($("contacts").checked) loadContacts(k);
+    state.contactCount = null;
+    $("contact-count").textContent = on ? "contacts: loading…" : "";
+    if (on) loadContacts(k);
     return;
   }
-  const MODE = [[0.55, 0.55, 0.55], [0.15, 0.4, 0.95], [0.95, 0.45, 0.1]];  // open, locked, sliding
-  const col = new Float32Array(c.point.length);
-  for (let i = 0; i < c.mode.length; i++) col.set(MODE[c.mode[i]] || [0, 0, 0], 3 * i);
+  const n = c.mode.length, col = new Float32Array(3 * n), counts = [0, 0, 0];
+  for (let i = 0; i < n; i++) {
+    col.set(MODE_RGB[c.mode[i]] || [0, 0, 0], 3 * i);
+    if (counts[c.mode[i]] !== undefined) counts[c.mode[i]]++;
+  }
+  const [points, arrows] = g.contacts.children;
   const geo = new THREE.BufferGeometry();
   geo.setAttribute("position", new THREE.BufferAttribute(c.point, 3));
   geo.setAttribute("color", new THREE.BufferAttribute(col, 3));
-  g.contacts.geometry.dispose();
-  g.contacts.geometry = geo;
+  points.geometry.dispose();
+  points.geometry = geo;
+  // normal force on block i as an arrow from the contact point along the normal (j into i);
+  // the largest force of the step is 15 % of the model's size long
+  let fmax = 0;
+  for (let i = 0; i < n; i++) fmax = Math.max(fmax, c.force[i]);
+  const L = 0.15 * Math.hypot(...g.head.extent), seg = [];
+  for (let i = 0; fmax > 0 && i < n; i++) {
+    if (!(c.force[i] > 0)) continue;
+    const p = c.point.subarray(3 * i, 3 * i + 3), nv = c.normal.subarray(3 * i, 3 * i + 3);
+    const len = L * c.force[i] / fmax, tip = [0, 1, 2].map((j) => p[j] + len * nv[j]);
+    // head: two strokes back from the tip, in a plane through the normal
+    const u = new THREE.Vector3(...nv).cross(Math.abs(nv[2]) < 0.9 ? new THREE.Vector3(0, 0, 1)
+                                                               : new THREE.Vector3(1, 0, 0)).normalize();
+    seg.push(...p, ...tip);
+    for (const sgn of [1, -1]) {
+      seg.push(...tip, ...[0, 1, 2].map((j) => tip[j] - 0.25 * len * nv[j]
+                                                + sgn * 0.12 * len * u.getComponent(j)));
+    }
+  }
+  arrows.geometry.dispose();
+  arrows.geometry = new THREE.BufferGeometry();
+  arrows.geometry.setAttribute("position", new THREE.Float32BufferAttribute(seg, 3));
+  arrows.visible = c.forces;
+  state.contactCount = n;
+  state.contactModes = Object.fromEntries(MODE_NAMES.map((m, i) => [m, counts[i]]));
+  state.maxNormalForce = fmax;
+  $("contact-count").textContent = `${n} contacts (${counts[0]} open, ${counts[1]} locked, `
+    + `${counts[2]} sliding)` + (c.forces
+      ? (fmax > 0 ? ` · arrows: normal force, longest ${fmt(fmax)} N` : " · no normal force")
+      : " · normal forces not recorded");
 }
 
 async function loadContacts(k) {
@@ -237,8 +281,17 @@ async function loadContacts(k) {
   const i = g.index[k];
   if (g.contactCache.has(i)) return;
   g.contactCache.set(i, null);
-  const { arrays } = await getFrames({ start: i, stop: i + 1, geometry: false, contacts: true });
-  g.contactCache.set(i, { point: arrays.contact_point, mode: arrays.contact_mode });
+  let head, arrays;
+  try {
+    ({ head, arrays } = await getFrames({ start: i, stop: i + 1, geometry: false, contacts: true }));
+  } catch (err) {
+    g.contactCache.delete(i);  // asked again when the step is shown again
+    $("contact-count").textContent = `contacts: ${err.message || err}`;
+    return;
+  }
+  g.contactCache.set(i, { point: arrays.contact_point, mode: arrays.contact_mode,
+                          normal: arrays.contact_normal, force: arrays.contact_force,
+                          forces: !!head.contact_forces });
   state.contactsShown = (state.contactsShown || 0) + 1;
   if (state.frame === k) { drawContacts(k); dirty = true; }
 }
