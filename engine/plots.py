@@ -32,6 +32,9 @@ ENERGY_LABELS = {
 MAX_HISTORY_BLOCKS = 8
 #: snapshots name the free blocks when there are at most this many
 MAX_LABELS = 30
+#: (elevation, azimuth) degrees of the snapshots' camera: the browser viewer's first view
+#: (from the south-west, above: camera direction (-0.45, -0.8, 0.45))
+VIEWER_VIEW = (26.1, -119.4)
 
 
 def _save(fig: Figure, path: PathLike, dpi: int = 120) -> Path:
@@ -232,12 +235,15 @@ def plot_water(result: Result | PathLike, path: PathLike) -> Path:
     return _save(fig, path)
 
 
-def plot_snapshot(result: Result | PathLike, step: int | None, path: PathLike) -> Path:
+def plot_snapshot(result: Result | PathLike, step: int | None, path: PathLike, *,
+                  view: tuple[float, float] = VIEWER_VIEW) -> Path:
     """3-D view of all blocks at recorded step `step` (None or no steps: initial geometry),
-    faces coloured by the mean displacement magnitude of their vertices."""
+    faces coloured by the mean displacement magnitude of their vertices, fixed blocks grey;
+    seen from `view` (elevation, azimuth in degrees: by default as the viewer first shows
+    the blocks)."""
     if not isinstance(result, Result):
         with open_result(result) as r:
-            return plot_snapshot(r, step, path)
+            return plot_snapshot(r, step, path, view=view)
     x0 = result.initial_vertices()
     if step is None or result.n_steps == 0:
         xs, label = x0, "initial geometry"
@@ -274,6 +280,7 @@ def plot_snapshot(result: Result | PathLike, step: int | None, path: PathLike) -
     ax.set_ylim(lo[1], lo[1] + span[1])
     ax.set_zlim(lo[2], lo[2] + span[2])
     ax.set_box_aspect(tuple(span / span.max()))
+    ax.view_init(elev=view[0], azim=view[1])
     ax.set_xlabel("x East (m)")
     ax.set_ylabel("y North (m)")
     ax.set_zlabel("z up (m)")
@@ -371,4 +378,38 @@ def plot_fos_trials(runs: list[dict], path: PathLike,
     if len(k):
         ax.set_xticks(k)
         ax.legend(fontsize="small", loc="upper left", bbox_to_anchor=(1.01, 1.0))
+    return _save(fig, path)
+
+
+def plot_fs_distribution(aggregates: dict[str, dict], path: PathLike,
+                         title: str = "Factor of safety over the realisations") -> Path:
+    """Histogram and empirical CDF of the factor of safety of a sweep: `aggregates` maps a
+    label (e.g. "dda", "analytic") to engine.reliability.aggregate's document (its
+    `histogram`, `cdf`, `probability_of_failure`); FS = 1 marked on both."""
+    fig = Figure(figsize=(10, 3.8), layout="constrained")
+    hist, cdf = fig.subplots(1, 2)
+    for k, (label, a) in enumerate(aggregates.items()):
+        pof = a.get("probability_of_failure")
+        name = f"{label} (n = {a.get('n', 0)}" + (f", PoF {pof:.3g})" if pof is not None
+                                                 else ")")
+        h = a.get("histogram")
+        if h and h.get("counts"):
+            edges = np.asarray(h["edges"], float)
+            hist.stairs(np.asarray(h["counts"], float), edges, fill=k == 0, alpha=0.5 if k == 0
+                        else 1.0, color=f"C{k}", label=name)
+        c = a.get("cdf")
+        if c and c.get("fs"):
+            fs = np.asarray(c["fs"], float)
+            cdf.step(fs, np.asarray(c["p"], float), where="post", color=f"C{k}", label=name)
+    for ax in (hist, cdf):
+        ax.axvline(1.0, color="C3", ls="--", lw=1, label="FS = 1")
+        ax.set_xlabel("factor of safety")
+        ax.grid(True, alpha=0.3)
+    hist.set_ylabel("realisations")
+    hist.set_title("histogram")
+    cdf.set_ylabel("P(FS ≤ x)")
+    cdf.set_ylim(0, 1.02)
+    cdf.set_title("empirical CDF")
+    cdf.legend(fontsize="small", loc="lower right")
+    fig.suptitle(title)
     return _save(fig, path)

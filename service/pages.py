@@ -231,11 +231,107 @@ def _trend_plunge(d: list[float]) -> list[str]:
     return ["–", "–"] if tp is None else [f"{tp[0]:.1f}", f"{tp[1]:.1f}"]
 
 
+_MODES = (("planar", "planar sliding", "set"), ("wedge", "wedge sliding", "sets"),
+          ("flexural_toppling", "flexural toppling", "set"),
+          ("direct_toppling", "direct toppling", "sets"))
+
+
+def _figure(src: str, caption: str, ident: str = "") -> str:
+    attr = f" id='{ident}'" if ident else ""
+    return (f'<figure{attr}><img src="{escape(src)}" alt="{escape(caption)}">'
+            f"<figcaption class='muted'>{escape(caption)}</figcaption></figure>")
+
+
+def _kinematics_section(part: dict[str, Any] | None) -> str:
+    """Admissible modes, every test with the conditions that failed, the stereonet; or why
+    there is no screening."""
+    if not part:
+        return ""
+    head = "<h2 id='kinematics'>Kinematic screening</h2>"
+    if "doc" not in part:
+        return head + f"<p class='muted'>Not available: {escape(part['reason'])}.</p>"
+    doc = part["doc"]
+    slope, lim = doc["slope"], doc["lateral_limits"]
+    out = [head, f"<p>Slope face {slope['dip']:g}/{slope['dip_direction']:03g} (dip/dip "
+                 f"direction), φ {slope['friction_angle']:g}° for joints without their own; "
+                 f"lateral limits ±{lim['planar']:g}° planar, ±{lim['flexural_toppling']:g}° "
+                 f"flexural, ±{lim['direct_toppling']:g}° direct toppling. Markland tests "
+                 "(engine.kinematics): what <i>can</i> move, not whether it does.</p>"]
+    adm = doc["admissible"]
+    out.append(_table(([title, ", ".join("/".join(x) if isinstance(x, list) else x
+                                         for x in adm[key]) or "none"]
+                       for key, title, _ in _MODES), ["mode", "admissible"]))
+    rows = []
+    for key, title, names in _MODES:
+        for r in doc[key]:
+            who = "/".join(r[names]) if names == "sets" else r[names]
+            line = (f"trend {r['trend']:.2f}°, plunge {r['plunge']:.2f}°; "
+                    if r.get("trend") is not None else "")
+            failed = [f"{c['test']}: {c['detail']}" for c in r["conditions"] if not c["passed"]]
+            rows.append([title, who, "admissible" if r["admissible"] else "no",
+                         line + ("; ".join(failed) if failed else "every condition met")])
+    out.append("<h3>Tests</h3>" + _table(rows, ["mode", "set(s)", "result",
+                                                "intersection; conditions not met"]))
+    out.append(_figure(part["src"], "Equal-area lower-hemisphere stereonet of the joints, "
+                       "the slope face and the tests' zones", "stereonet"))
+    return "".join(out)
+
+
+def _sweep_section(part: dict[str, Any] | None) -> str:
+    """Probability of failure with its interval, FS statistics per method, the histogram
+    and CDF of the factors of safety."""
+    if not part:
+        return ""
+    doc, spec = part["doc"], part["doc"].get("spec") or {}
+    out = ["<h2 id='sweep'>Monte Carlo sweep</h2>",
+           f"<p>{doc.get('done', 0)} of {spec.get('n', '?')} realisations done (seed "
+           f"{spec.get('seed', '?')}); friction angle φ ~ Normal({spec.get('friction_mean')}°, "
+           f"{spec.get('friction_sd')}°) on every joint; factor of safety by "
+           f"{escape(str(spec.get('mode', '?')))}.</p>"]
+    rows = []
+    for label, a in part["aggregates"].items():
+        pof, ci = a.get("probability_of_failure"), a.get("pof_interval_95") or [None, None]
+        pct = a.get("percentiles") or {}
+        rows.append([label, a.get("n", 0), a.get("failures", 0), a.get("excluded", 0),
+                     "–" if pof is None else f"{pof:.4g}",
+                     "–" if pof is None else f"{ci[0]:.3g} – {ci[1]:.3g}",
+                     *(_num(a[k]) if k in a else "–" for k in ("mean", "sd", "min", "max")),
+                     *(_num(pct[q]) if q in pct else "–" for q in ("5", "50", "95")),
+                     _num((a.get("sensitivity") or {}).get("friction_angle", "–"))])
+    out.append(_table(rows, ["method", "n", "failures (FS < 1)", "excluded", "PoF",
+                             "PoF 95 % (Wilson)", "mean FS", "sd", "min", "max", "P5", "P50",
+                             "P95", "Spearman ρ(φ, FS)"]))
+    if part.get("src"):
+        out.append(_figure(part["src"], "Factor of safety over the realisations: histogram "
+                           "and empirical CDF (FS = 1 dashed)", "sweep-figure"))
+    else:
+        out.append("<p class='muted'>No realisation has a factor of safety yet.</p>")
+    return "".join(out)
+
+
+def _snapshot_section(src: str | None, meta: dict[str, Any]) -> str:
+    """The blocks at the last recorded step, drawn from the result file's vertices."""
+    if src is None:
+        return ("<p class='muted'>No step was recorded: there is no last frame to draw.</p>"
+                if meta.get("n_steps") == 0 else "")
+    last = meta.get("last") or {}
+    when = (f" (step {last['step']}, t = {last['time']:.4g} s)" if last else "")
+    return ("<h3 id='snapshot'>Blocks at the last recorded step</h3>"
+            + _figure(src, f"The blocks at the last recorded step{when}, drawn from the "
+                      "result file's vertices and seen as the viewer first shows them; each "
+                      "face coloured by the mean displacement of its vertices (the colour "
+                      "bar spans them), fixed blocks grey.", "snapshot-figure"))
+
+
 def report_html(job: JobRecord, root: str, job_dir: Path, scene_text: str,
                 plots: list[str], result_meta: dict[str, Any],
-                figures: dict[str, str] | None = None) -> str:
-    """The printable report of a finished job: scene, result, FS, plots, warnings,
-    versions and the scene hash; `figures`: more images (caption -> src) after the FS."""
+                figures: dict[str, str] | None = None, *,
+                kinematics: dict[str, Any] | None = None, snapshot: str | None = None,
+                sweep: dict[str, Any] | None = None) -> str:
+    """The printable report of a finished job: FS or sweep, kinematic screening, scene,
+    result with the blocks at the last step, plots, warnings, versions and the scene hash.
+    `figures`: more images (caption -> src) after the FS; `kinematics`, `sweep`: the parts
+    service.api.results makes; `snapshot`: the src of the last step's image."""
     base = f"{root}/jobs/{job.id}"
     try:
         scene = json.loads(scene_text) if scene_text else {}
@@ -271,8 +367,9 @@ def report_html(job: JobRecord, root: str, job_dir: Path, scene_text: str,
         if extra:
             s.append(_table(extra.items(), ()))
     for caption, src in (figures or {}).items():
-        s.append(f'<figure><img src="{escape(src)}" alt="{escape(caption)}">'
-                 f"<figcaption class='muted'>{escape(caption)}</figcaption></figure>")
+        s.append(_figure(src, caption))
+    s.append(_sweep_section(sweep))
+    s.append(_kinematics_section(kinematics))
     s.append("<h2>Scene</h2>" + _scene_section(scene))
     if summary:
         keys = ("status", "message", "steps", "simulated_time", "wall_time", "penalty",
@@ -282,6 +379,7 @@ def report_html(job: JobRecord, root: str, job_dir: Path, scene_text: str,
                   + (f", {sum(map(bool, fixed))} fixed" if fixed else ""))
         s.append(f"<h2>Result</h2><p>{escape(counts)}</p>"
                  + _table((_LABELS.get(k, k), summary[k]) for k in keys if k in summary))
+        s.append(_snapshot_section(snapshot, result_meta))
         s.append(_blocks_section(summary, result_meta))
     elif "blocks.json" in docs:
         blocks = docs["blocks.json"].get("blocks", [])
@@ -295,15 +393,17 @@ def report_html(job: JobRecord, root: str, job_dir: Path, scene_text: str,
     s.append("<h2>Warnings</h2>" + ("".join(f"<div class='warn'>{escape(str(w))}</div>"
                                             for w in warnings) or "<p>None.</p>"))
     digest = hashlib.sha256(scene_text.encode("utf-8")).hexdigest() if scene_text else "–"
+    import matplotlib
     import numpy
     import scipy
 
     versions = [["scene SHA-256", digest],
                 ["result file scene SHA-256", result_meta.get("scene_sha256", "–")],
-                ["engine", result_meta.get("engine_version", "–")],
+                ["engine", result_meta.get("engine_version") or _installed("polydda")],
                 ["scene schema", result_meta.get("schema_version", "–")],
                 ["service", VERSION], ["python", platform.python_version()],
-                ["numpy", numpy.__version__], ["scipy", scipy.__version__]]
+                ["numpy", numpy.__version__], ["scipy", scipy.__version__],
+                ["matplotlib", matplotlib.__version__]]
     s.append("<h2>Versions and provenance</h2>" + _table(versions, ()))
     links = " · ".join(f'<a href="{escape(h)}">{t}</a>' for t, h in job_links(job, root)
                        if t != "report")
@@ -317,3 +417,13 @@ def _iso(t: float | None) -> str:
     from service.api.models import iso_time
 
     return iso_time(t) or "–"
+
+
+def _installed(dist: str) -> str:
+    """The installed version of a distribution ("–" if it is not installed)."""
+    from importlib.metadata import PackageNotFoundError, version
+
+    try:
+        return version(dist)
+    except PackageNotFoundError:
+        return "–"

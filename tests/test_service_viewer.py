@@ -5,6 +5,7 @@ Real-browser tests of the same pages: tests/test_service_viewer_browser.py.
 
 from __future__ import annotations
 
+import base64
 import hashlib
 import json
 import re
@@ -17,6 +18,7 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
+from engine.plots import plot_snapshot
 from engine.results import open_result
 from service.app import create_app
 from service.frames import decode_binary
@@ -247,8 +249,20 @@ def test_viewer_and_report_pages_use_only_local_assets(cube_job: Any) -> None:
     for section in ("Scene", "Result", "Plots", "Warnings", "Versions"):
         assert f"<h2>{section}" in text, section
     imgs = re.findall(r'<img src="([^"]+)"', text)
-    assert len(imgs) >= 3 and all(c.get(i).status_code == 200 for i in imgs)
+    linked = [i for i in imgs if not i.startswith("data:")]
+    assert len(linked) >= 3 and all(c.get(i).status_code == 200 for i in linked)
     assert "cube" in text and "fixed" in text
+    # the blocks at the last step: inline, drawn from the result file's last step (the
+    # same PNG engine.plots draws from it; not the first step's) and not repeated in Plots
+    snap = re.search(r"<figure id='snapshot-figure'><img src=\"data:image/png;base64,([^\"]+)\"",
+                     text)
+    assert snap is not None and "snapshot_final.png" not in text
+    with open_result(h5) as r:
+        last = plot_snapshot(r, -1, h5.with_name("test-last.png")).read_bytes()
+        first = plot_snapshot(r, 0, h5.with_name("test-first.png")).read_bytes()
+        assert f"step {int(r.steps[-1])}, t = {r.times[-1]:.4g} s" in text
+    assert base64.b64decode(snap[1]) == last != first
+    assert "Kinematic screening" in text and "the scene gives no slope_face and no joints" in text
     r = c.post("/jobs", json={**cube_scene(), "process": "block-cutting"})
     cut = wait_final(c, r.headers["Location"])
     assert c.get(r.headers["Location"] + "/viewer").status_code == 404
@@ -288,6 +302,47 @@ def test_report_of_a_factor_of_safety_job(tmp_path: Path) -> None:
     assert "a warning of the build" in text and "Bisection history" in text
     assert text.count("<tr>") >= 4 and 'src="data:image/png;base64,' in text
     assert hashlib.sha256(json.dumps(scene).encode()).hexdigest() in text
+
+
+def test_report_of_a_sweep_has_its_distribution_and_the_kinematics(tmp_path: Path) -> None:
+    """A sweep job's report: PoF with its interval per method, the FS histogram and CDF as
+    an inline figure; the wedge scene's kinematic screening (its slope face and J1/J2)
+    with the stereonet inline."""
+    from service.backends.store import JobStore
+    from service.sweep import SweepSpec, run_sweep
+    from tests.service_helpers import wedge_scene
+
+    settings = Settings(data_dir=tmp_path / "data")
+    settings.data_dir.mkdir(parents=True)
+    store = JobStore(settings.db_path)
+    scene = wedge_scene(2.0)
+    job, _ = store.submit(process="sweep", scene=json.dumps(scene), client="ip:testclient",
+                          quota=10)
+    job_dir = settings.job_dir(job.id)
+    doc = run_sweep(scene, SweepSpec(n=60, seed=7, friction_mean=25.0, friction_sd=5.0,
+                                     mode="analytic"), job_dir)
+    store.update(job.id, status="successful", progress=100.0, finished=time.time())
+    with make_client(settings.data_dir) as c:
+        t0 = time.perf_counter()
+        r = c.get(f"/jobs/{job.id}/report")
+        seconds = time.perf_counter() - t0
+    print(f"sweep report (stereonet and FS figure made): {seconds:.2f} s")
+    assert r.status_code == 200
+    text = r.text
+    a = doc["analytic"]
+    assert 0 < a["failures"] < 60  # φ ~ N(25°, 5°) against the critical 20.89°
+    lo, hi = a["pof_interval_95"]
+    assert f"<td>{a['probability_of_failure']:.4g}</td>" in text
+    assert f"{lo:.3g} – {hi:.3g}" in text and "Monte Carlo sweep" in text
+    assert "<figure id='sweep-figure'><img src=\"data:image/png;base64," in text
+    assert (job_dir / "report" / "sweep.png").is_file()
+    # the kinematics of the wedge in its vertical face 90/180 (VALIDATION.md 2.1)
+    assert "Slope face 90/180" in text and "trend 172.59°, plunge 28.75°" in text
+    assert "<tr><td>wedge sliding</td><td>none</td></tr>" in text
+    assert "plunge 28.75° vs φ 40°" in text  # why the wedge cannot slide
+    stereo = re.search(r"<figure id='stereonet'><img src=\"data:image/png;base64,([^\"]+)\"",
+                       text)
+    assert stereo is not None and base64.b64decode(stereo[1]).startswith(b"\x89PNG")
 
 
 @pytest.mark.parametrize("turn", [0, 1, 2])

@@ -212,11 +212,14 @@ def frames(job: JobRecord, settings: Settings, start: int, stop: int | None, str
 
 
 def report(job: JobRecord, settings: Settings, scene_text: str, root: str) -> str:
-    """The printable HTML report of a finished job (plots made if not yet)."""
+    """The printable HTML report of a finished job (plots and figures made if not yet):
+    its FS or sweep, the kinematic screening of the scene's joints against its slope face,
+    the blocks at the last recorded step, the plots."""
     require_final(job)
     d = settings.job_dir(job.id)
     names: list[str] = []
     meta: dict[str, Any] = {}
+    snapshot = None
     if (d / RESULT_FILE).is_file():
         from engine.results import open_result
 
@@ -225,18 +228,102 @@ def report(job: JobRecord, settings: Settings, scene_text: str, root: str) -> st
             meta = {"engine_version": r.engine_version,
                     "schema_version": r.schema_version or "–",
                     "scene_sha256": r.scene_sha256 or "–",
-                    "fixed": r.fixed.tolist(), "volume": r.volume.tolist()}
+                    "fixed": r.fixed.tolist(), "volume": r.volume.tolist(),
+                    "n_steps": r.n_steps}
+            if r.n_steps:
+                meta["last"] = {"time": float(r.times[-1]), "step": int(r.steps[-1])}
+        if "snapshot_final.png" in names:  # the blocks at the last recorded step
+            names.remove("snapshot_final.png")
+            snapshot = png_uri(d / "plots" / "snapshot_final.png")
     figures = {}
     fos = d / "fos.json"
     if fos.is_file():
         figures["Bisection of the reduction factor"] = fos_figure(fos)
-    return report_html(job, root, d, scene_text, names, meta, figures)
+    return report_html(job, root, d, scene_text, names, meta, figures,
+                       kinematics=kinematics_part(d, scene_of(scene_text)),
+                       snapshot=snapshot, sweep=sweep_part(d))
+
+
+def scene_of(scene_text: str) -> dict[str, Any]:
+    """The scene of a job's stored text (a scene, or an execute request's inputs.scene;
+    {} if it is no JSON object)."""
+    try:
+        scene = json.loads(scene_text) if scene_text else {}
+    except ValueError:
+        return {}
+    if not isinstance(scene, dict):
+        return {}
+    inner = (scene.get("inputs") or {}).get("scene") if "inputs" in scene else None
+    return inner if isinstance(inner, dict) else scene
+
+
+def png_uri(path: Path) -> str:
+    """A PNG file as a data: URI (the report carries its figures when saved or printed)."""
+    import base64
+
+    return "data:image/png;base64," + base64.b64encode(path.read_bytes()).decode()
+
+
+def _figure(path: Path, newer_than: Path | None, make: Any) -> str:
+    """`path` made by `make(path)` once (again when `newer_than` changed since), as a URI."""
+    with _lock(str(path)):
+        if not path.is_file() or (newer_than is not None and path.stat().st_mtime
+                                  < newer_than.stat().st_mtime):
+            path.parent.mkdir(parents=True, exist_ok=True)
+            make(path)
+    return png_uri(path)
+
+
+def kinematics_part(job_dir: Path, scene: dict[str, Any]) -> dict[str, Any]:
+    """The kinematic screening of the scene (engine.kinematics: its joints against its
+    slope face) and its stereonet as a data: URI (`doc`, `src`); or `reason` when the
+    scene gives no slope face or no joints."""
+    from schemas.errors import SceneError
+    from service.documents import kinematic_result, kinematics_document
+
+    missing = [k for k in ("slope_face", "joints") if not scene.get(k)]
+    if missing:
+        return {"reason": f"the scene gives no {' and no '.join(missing)} (the screening "
+                          "tests the joints' orientations against the slope face's)"}
+    try:
+        result = kinematic_result(scene)
+    except SceneError as exc:
+        return {"reason": "; ".join(exc.lines())}
+    except ValueError as exc:  # an orientation the screening refuses (slope dip 0...)
+        return {"reason": str(exc)}
+    made = job_dir / "stereonet.png"  # a kinematics job drew it already
+    if made.is_file():
+        src = png_uri(made)
+    else:
+        from engine.stereonet import plot_stereonet
+
+        src = _figure(job_dir / "report" / "stereonet.png", None,
+                      lambda path: plot_stereonet(result, path))
+    return {"doc": kinematics_document(result), "src": src}
+
+
+def sweep_part(job_dir: Path) -> dict[str, Any] | None:
+    """A sweep job's sweep.json (`doc`) and its FS histogram and CDF as a data: URI (`src`,
+    None while no realisation has a factor of safety); None for other jobs."""
+    path = job_dir / "sweep.json"
+    if not path.is_file():
+        return None
+    doc = json.loads(path.read_text(encoding="utf-8"))
+    mode = (doc.get("spec") or {}).get("mode", "dda")
+    aggs = {mode: doc.get(mode) or {}}
+    if mode != "analytic" and doc.get("analytic"):
+        aggs["analytic (eq. 51)"] = doc["analytic"]
+    src = None
+    if any((a.get("histogram") or {}).get("counts") for a in aggs.values()):
+        from engine.plots import plot_fs_distribution
+
+        src = _figure(job_dir / "report" / "sweep.png", path,
+                      lambda out: plot_fs_distribution(aggs, out))
+    return {"doc": doc, "src": src, "aggregates": aggs}
 
 
 def fos_figure(fos: Path) -> str:
     """The FoS trials plot of a fos.json (made beside it once) as a data: URI."""
-    import base64
-
     png = fos.with_name("fos_trials.png")
     with _lock(str(fos) + "/plot"):
         if not png.is_file() or png.stat().st_mtime < fos.stat().st_mtime:
@@ -245,5 +332,4 @@ def fos_figure(fos: Path) -> str:
             doc = json.loads(fos.read_text(encoding="utf-8"))
             fs = doc.get("factor_of_safety")
             plot_fos_trials(doc.get("runs") or [], png, fs if isinstance(fs, float) else None)
-    return "data:image/png;base64," + base64.b64encode(png.read_bytes()).decode()
-
+    return png_uri(png)
