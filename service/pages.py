@@ -384,6 +384,9 @@ def report_html(job: JobRecord, root: str, job_dir: Path, scene_text: str,
     elif "blocks.json" in docs:
         blocks = docs["blocks.json"].get("blocks", [])
         s.append(f"<h2>Blocks</h2><p>{len(blocks)} blocks after cutting.</p>")
+    elif result_meta:  # a result file without a summary (a run killed before its end)
+        s.append(f"<h2>Result</h2><p>{result_meta.get('n_steps', 0)} recorded steps; the run "
+                 "wrote no summary.</p>" + _snapshot_section(snapshot, result_meta))
     if plots:
         s.append("<h2>Plots</h2>" + "".join(
             f'<figure><img src="{base}/results/plots/{escape(p)}" alt="{escape(p)}">'

@@ -269,6 +269,24 @@ def test_viewer_and_report_pages_use_only_local_assets(cube_job: Any) -> None:
     assert c.get(r.headers["Location"] + "/report").status_code == 200, cut
 
 
+def test_report_of_1000_blocks_without_a_summary(tmp_path: Path) -> None:
+    """A 1,000-block, 100-step result with no summary (as a killed run leaves): the report
+    still draws the blocks at the last step; its time to make (plots included) is
+    printed."""
+    job_id, h5 = synthetic_job(tmp_path / "data", n_blocks=1000, n_steps=100,
+                               contacts=False)
+    with make_client(tmp_path / "data") as c:
+        t0 = time.perf_counter()
+        r = c.get(f"/jobs/{job_id}/report")
+        seconds = time.perf_counter() - t0
+    print(f"report of 1,000 blocks x 100 steps (plots made): {seconds:.2f} s")
+    assert r.status_code == 200
+    assert "100 recorded steps; the run wrote no summary" in r.text
+    assert "<figure id='snapshot-figure'><img src=\"data:image/png;base64," in r.text
+    assert "step 990, t = 0.99 s" in r.text
+    assert seconds < 20
+
+
 def test_trend_and_plunge() -> None:
     assert trend_plunge([0, 0, 0]) is None
     assert trend_plunge([1, 0, 0]) == pytest.approx((90.0, 0.0))  # East, horizontal

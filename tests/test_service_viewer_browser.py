@@ -173,15 +173,25 @@ def test_viewer_strides_long_results(served: Any) -> None:
 
 
 def test_report_page_loads_with_its_plots(served: Any) -> None:
-    _, job, _, _ = served
+    """The wedge's report: every image loads (plots, the blocks at the last step and the
+    stereonet inline), the kinematic screening says why the wedge cannot slide; it prints
+    to PDF. The server's time to make it (plots included) is printed."""
+    server, job, _, _ = served
+    for attempt in ("first (plots and figures made)", "again"):
+        t0 = time.perf_counter()
+        assert httpx.get(f"{server.url}/jobs/{job}/report", timeout=60).status_code == 200
+        print(f"wedge report, {attempt}: {time.perf_counter() - t0:.2f} s")
     page, bad = open_page(served, f"/jobs/{job}/report")
     try:
         page.wait_for_load_state("networkidle")
         assert "wedge" in page.inner_text("main h1")
         sizes = page.evaluate("[...document.images].map(i => i.naturalWidth)")
-        assert len(sizes) >= 4 and min(sizes) > 100  # every plot image loaded
+        assert len(sizes) >= 6 and min(sizes) > 100  # every image loaded
+        for fig in ("#snapshot-figure img", "#stereonet img"):
+            assert page.evaluate(f"document.querySelector('{fig}').naturalWidth") > 500, fig
         text = page.inner_text("body")
         assert "J1" in text and "Versions and provenance" in text and "B2" in text
+        assert "Kinematic screening" in text and "plunge 28.75° vs φ 40°" in text
         shot(page, "report.png", full_page=True)
         pdf = page.pdf(format="A4")  # what "Print / save as PDF" makes
         assert pdf.startswith(b"%PDF") and len(pdf) > 50_000
