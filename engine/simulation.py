@@ -22,6 +22,7 @@ import numpy as np
 
 from engine import energy, output, stepping
 from engine.contact_step import find_contacts
+from engine.damping import damp_contacts
 from engine.frame import Frame, Recorder
 from engine.model import Model
 from engine.motion import advance
@@ -95,6 +96,7 @@ class Simulation:
                 stepping.check(system, res, attempt)
                 clock = _time.perf_counter()
                 after = advance(system, state, res, attempt.dt)
+                after = damp_contacts(system, state, res, after, attempt.dt)
                 energy.check_step(system, state, after)
                 break
             except stepping.SearchWider:

@@ -194,6 +194,34 @@ def test_a_parting_contact_loses_its_dashpot_not_its_spring() -> None:
     assert out[6][0] == pytest.approx(1e9 * 1e-5)
 
 
+def test_ringing_is_a_relative_velocity_that_reversed_in_the_step() -> None:
+    """A closed contact rings where its relative velocity at the step's end points against
+    the one at its start: normally (a bounce, a normal ring), tangentially (a shear ring);
+    one moving the same way all through the step (sliding, starting to topple) does not."""
+    from types import SimpleNamespace
+
+    from engine.contacts import ContactSet
+    from engine.damping import ringing
+
+    c = 3
+    contacts = ContactSet(
+        block_i=np.array([1, 2, 3]), block_j=np.zeros(c, np.int64),
+        kind=np.zeros(c, np.int8), point_i=np.tile([0.0, 0.0, 0.0], (c, 1)),
+        point_j=np.tile([0.0, 0.0, 0.0], (c, 1)), normal=np.tile([0.0, 0.0, 1.0], (c, 1)),
+        tangent=np.tile([1.0, 0.0, 0.0], (c, 1)), mode=np.full(c, LOCKED, np.int8),
+        gap=np.zeros(c), key=np.zeros((c, 4), np.int64), face_tag=np.zeros(c, np.int64),
+        joint_material=np.zeros(c, np.int64), cand_indptr=np.zeros(c + 1, np.int64),
+        cand_normals=np.zeros((0, 3)))
+    v0, v1 = np.zeros((4, 12)), np.zeros((4, 12))
+    v0[1, :3], v1[1, :3] = [0.1, 0.0, -0.2], [0.05, 0.0, 0.1]    # bounces, slides on
+    v0[2, :3], v1[2, :3] = [0.1, 0.0, -0.1], [-0.1, 0.0, -0.05]  # shear ring, still closing
+    v0[3, :3], v1[3, :3] = [0.1, 0.02, 0.0], [0.2, 0.03, 0.0]    # slides one way
+    before = SimpleNamespace(velocity=v0, centroid=np.zeros((4, 3)))
+    ring_n, ring_t = ringing(before, contacts, v1)
+    assert ring_n.tolist() == [True, False, False]
+    assert ring_t.tolist() == [False, True, False]
+
+
 def test_step_results_forces_and_dissipation() -> None:
     """A locked contact: normal force −kn d1, shear force −ks × its stretch; the implicit
     springs dissipate ½ k Δ² of their change."""
@@ -295,8 +323,8 @@ def test_readme_architecture_names_what_the_code_has() -> None:
 
     readme = (ENGINE.parent / "README.md").read_text()
     block = readme.split("## Architecture", 1)[1].split("```")[1]
-    names = re.findall(r"\b(stepping|contact_step|open_close|motion|energy|simulation|output|"
-                       r"results)"
+    names = re.findall(r"\b(stepping|contact_step|open_close|motion|damping|energy|simulation|"
+                       r"output|results)"
                        r"\.([a-z_A-Z]+)", block)
     assert len(names) >= 9
     for module, attr in names:
@@ -305,6 +333,7 @@ def test_readme_architecture_names_what_the_code_has() -> None:
         (ENGINE / "simulation.py").read_text(),
         next(f for f in _functions(ENGINE / "simulation.py") if f.name == "step"))
     order = ["first_attempt(", "find_contacts(", "initial_modes(", "open_close_iteration(",
-             "stepping.check(", "advance(", "energy.check_step(", "stepping.cut("]
+             "stepping.check(", "advance(", "damp_contacts(", "energy.check_step(",
+             "stepping.cut("]
     positions = [step.index(name) for name in order]
     assert positions == sorted(positions)

@@ -1,0 +1,124 @@
+"""Damping the ring, not the motion: dashpots after the step at contacts whose relative
+velocity reversed in it.
+
+DDA's integrator (velocities `2 d / Δt − v0`, β = ½, γ = 1) leaves an oscillation faster
+than the step resolves — a stiff penalty spring's — undamped: it rings at the step's own
+frequency, velocities flipping sign every step, and a block resting on its contacts rocks
+and walks down a slope its friction should hold. The dashpots inside the solve
+(`open_close.contact_damping`) cannot stop it: they act on the step's mean velocity, which
+a ring keeps near zero. Here, after the converged step, the closed contacts whose relative
+velocity at the end points against the one at the start get their dashpots again,
+implicitly on the end velocities — `(M + Δt Jᵀ C J) v = M v1`, J their relative velocity
+(normal, and tangential where locked) — which kills a ring at any stiffness (c Δt ≫ m),
+moves no block and only removes kinetic energy. A contact moving one way through the step
+(a column starting to topple, a block sliding) is left alone: a dashpot on it would act as
+viscous static friction.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from engine import assembly as asm
+from engine._motion_kernels import point_motions
+from engine.block_terms import kinetic_energy
+from engine.contacts import LOCKED, OPEN, ContactSet
+from engine.motion import mass_matrices
+from engine.open_close import contact_damping
+from engine.solver import BlockJacobi, SolveError, make_solver
+from engine.state import State, StepResult
+from engine.status import StepFailure
+from engine.system import BlockSystem
+
+#: passes that scale down the dashpots that would pull or beat friction
+MAX_DAMPING_PASSES = 4
+
+
+def _relative_velocity(before: State, sub: ContactSet, v: np.ndarray
+                       ) -> tuple[np.ndarray, np.ndarray]:
+    """Relative velocity of block i's contact point to block j's for block velocities
+    `v (n, 12)` at the step's start geometry: normal `(c,)` m/s (positive: parting) and
+    tangential `(c, 3)` m/s."""
+    bi, bj = sub.block_i, sub.block_j
+    rel = (point_motions(sub.point_i, before.centroid[bi], v[bi])
+           - point_motions(sub.point_j, before.centroid[bj], v[bj]))
+    vn = np.einsum("ij,ij->i", rel, sub.normal)
+    return vn, rel - vn[:, None] * sub.normal
+
+
+def ringing(before: State, sub: ContactSet, v1: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Which closed contacts ring `(c,) bool` normally and tangentially: their relative
+    velocity at the end of the step, `v1 (n, 12)`, points against the one at its start — the
+    signature of a spring faster than the step (and of a landing's bounce); a contact moving
+    one way through the step (a column starting to topple, a block sliding) does not."""
+    vn0, vt0 = _relative_velocity(before, sub, before.velocity)
+    vn1, vt1 = _relative_velocity(before, sub, v1)
+    return vn0 * vn1 < 0.0, np.einsum("ij,ij->i", vt0, vt1) < 0.0
+
+
+def damp_contacts(system: BlockSystem, before: State, res: StepResult, after: State,
+                  dt: float) -> State:
+    """`after` with its velocities damped at the contacts the step `res` (from `before`)
+    ended closed and ringing (`ringing`), the kinetic energy removed counted as damping
+    dissipation (in place; StepFailure "solve" if the system cannot be solved). A normal
+    dashpot pulls no harder than its spring presses and a shear dashpot of a locked contact
+    holds no more than the friction its spring leaves (each scaled down to that, a few
+    passes), so damping neither glues blocks together nor stops a slip."""
+    cs = res.contacts
+    closed = np.flatnonzero(cs.mode != OPEN)
+    if system.controls.contact_damping <= 0 or len(closed) == 0:
+        return after
+    nd = system.ndof
+    sub = cs.subset(closed)
+    # what the normal spring presses with, and the friction a locked contact's shear spring
+    # leaves, for the dashpots (N)
+    pressed = np.maximum(res.normal_force[closed], 0.0)
+    headroom = np.where(sub.mode == LOCKED, np.maximum(
+        system.tan_phi[sub.joint_material] * pressed
+        - np.linalg.norm(res.shear_force[closed], axis=1), 0.0), 0.0)
+    ring_n, ring_t = ringing(before, sub, after.velocity)
+    ring_t &= headroom > 0.0
+    rings = np.flatnonzero(ring_n | ring_t)
+    if len(rings) == 0:
+        return after
+    sub, pressed, headroom = sub.subset(rings), pressed[rings], headroom[rings]
+    # the dashpots of the closed contacts (a pair's mass shared by those that carry it)
+    cn, cshear = (c[rings] for c in contact_damping(system, before, cs.subset(closed)))
+    cn = np.where(ring_n[rings], cn, 0.0)
+    cshear = np.where(ring_t[rings], cshear, 0.0)
+    bi, bj = sub.block_i, sub.block_j
+    ti = np.ascontiguousarray(
+        asm.displacement_matrices(sub.point_i, before.centroid[bi])[:, :, :nd])
+    tj = np.ascontiguousarray(
+        asm.displacement_matrices(sub.point_j, before.centroid[bj])[:, :, :nd])
+    mass = mass_matrices(system, after)
+    plan = asm.plan_system(system.block_row, np.ascontiguousarray(mass[:, :nd, :nd]), bi, bj,
+                           ti, tj, sub.normal)
+    v0 = after.velocity
+    momentum = np.einsum("nij,nj->ni", mass, v0)
+    rhs = asm.scatter_vector(system.dof_map, np.arange(system.n), momentum,
+                             system.n_unknowns)
+    free = system.dof_map >= 0
+    v = v0
+    for _ in range(MAX_DAMPING_PASSES):
+        if not (np.any(cn > 0) or np.any(cshear > 0)):
+            break
+        a, adiag = plan.matrix(dt * cn, dt * cshear)
+        try:
+            x = make_solver(a, nd, adiag, BlockJacobi(), plan.coupled)(rhs, None)
+        except SolveError as exc:
+            raise StepFailure(str(exc), "solve") from exc
+        v = v0.copy()
+        v[free] = x[system.dof_map[free]]
+        vn, vt_vec = _relative_velocity(before, sub, v)
+        vt = np.linalg.norm(vt_vec, axis=1)
+        pulling = cn * vn > pressed * (1.0 + 1e-9)
+        over = cshear * vt > headroom * (1.0 + 1e-9)
+        if not (np.any(pulling) or np.any(over)):
+            break
+        cn = np.where(pulling, pressed / np.maximum(vn, 1e-300), cn)
+        cshear = np.where(over, headroom / np.maximum(vt, 1e-300), cshear)
+    removed = kinetic_energy(v0, mass) - kinetic_energy(v, mass)
+    after.velocity = v
+    after.energies["damping_dissipation"] += float(removed)
+    return after
