@@ -1,18 +1,22 @@
-"""Damping the ring, not the motion: dashpots after the step at contacts whose relative
-velocity reversed in it.
+"""Damping the ring and the rebound, not the motion: dashpots after the step at closed
+contacts whose relative velocity reversed in it, or that part while their spring presses.
 
 DDA's integrator (velocities `2 d / Δt − v0`, β = ½, γ = 1) leaves an oscillation faster
 than the step resolves — a stiff penalty spring's — undamped: it rings at the step's own
 frequency, velocities flipping sign every step, and a block resting on its contacts rocks
 and walks down a slope its friction should hold. The dashpots inside the solve
 (`open_close.contact_damping`) cannot stop it: they act on the step's mean velocity, which
-a ring keeps near zero. Here, after the converged step, the closed contacts whose relative
-velocity at the end points against the one at the start get their dashpots again,
-implicitly on the end velocities — `(M + Δt Jᵀ C J) v = M v1`, J their relative velocity
-(normal, and tangential where locked) — which kills a ring at any stiffness (c Δt ≫ m),
-moves no block and only removes kinetic energy. A contact moving one way through the step
-(a column starting to topple, a block sliding) is left alone: a dashpot on it would act as
-viscous static friction.
+a ring keeps near zero. And a penalty spring that gives back as motion the energy it
+stored makes a block rebound by an amount that depends on the penalty, a numerical
+choice: a stiff spring rebounds in one step (restitution ~1), a soft one over many, damped
+by the dashpots (~0.4 at ζ 0.5). Here, after the converged step, closed contacts get
+their dashpots again, implicitly on the end velocities — `(M + Δt Jᵀ C J) v = M v1`, J
+their relative velocity — normally where the relative velocity reversed or the blocks part
+while the spring still presses (an impact is plastic, whatever the penalty), and
+tangentially where a locked contact's slip reversed. That kills a ring at any stiffness
+(c Δt ≫ m), moves no block and only removes kinetic energy. A contact moving one way
+through the step (a column starting to topple, a block sliding) keeps its tangential
+motion: a dashpot on it would act as viscous static friction.
 """
 
 from __future__ import annotations
@@ -47,13 +51,14 @@ def _relative_velocity(before: State, sub: ContactSet, v: np.ndarray
 
 
 def ringing(before: State, sub: ContactSet, v1: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Which closed contacts ring `(c,) bool` normally and tangentially: their relative
-    velocity at the end of the step, `v1 (n, 12)`, points against the one at its start — the
-    signature of a spring faster than the step (and of a landing's bounce); a contact moving
-    one way through the step (a column starting to topple, a block sliding) does not."""
+    """Which closed contacts get their dashpots after the step `(c,) bool`, normally and
+    tangentially: normally where the relative velocity at the step's end, `v1 (n, 12)`,
+    points against the one at its start (a ring, a landing) or the blocks part (the spring
+    giving back what it stored: a rebound); tangentially where the slip reversed (a ring of
+    the shear spring). A contact sliding or rolling one way through the step is not."""
     vn0, vt0 = _relative_velocity(before, sub, before.velocity)
     vn1, vt1 = _relative_velocity(before, sub, v1)
-    return vn0 * vn1 < 0.0, np.einsum("ij,ij->i", vt0, vt1) < 0.0
+    return (vn0 * vn1 < 0.0) | (vn1 > 0.0), np.einsum("ij,ij->i", vt0, vt1) < 0.0
 
 
 def damp_contacts(system: BlockSystem, before: State, res: StepResult, after: State,

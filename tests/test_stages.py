@@ -194,32 +194,33 @@ def test_a_parting_contact_loses_its_dashpot_not_its_spring() -> None:
     assert out[6][0] == pytest.approx(1e9 * 1e-5)
 
 
-def test_ringing_is_a_relative_velocity_that_reversed_in_the_step() -> None:
-    """A closed contact rings where its relative velocity at the step's end points against
-    the one at its start: normally (a bounce, a normal ring), tangentially (a shear ring);
-    one moving the same way all through the step (sliding, starting to topple) does not."""
+def test_dashpots_after_the_step_go_to_rings_and_rebounds() -> None:
+    """After the step a closed contact is damped normally where its relative velocity at
+    the end points against the one at the start (a bounce, a ring) or the blocks part (a
+    rebound), tangentially where its slip reversed (a shear ring); one still closing, or
+    sliding one way all through the step (sliding, starting to topple), is not."""
     from types import SimpleNamespace
 
     from engine.contacts import ContactSet
     from engine.damping import ringing
 
-    c = 3
+    c = 4
     contacts = ContactSet(
-        block_i=np.array([1, 2, 3]), block_j=np.zeros(c, np.int64),
-        kind=np.zeros(c, np.int8), point_i=np.tile([0.0, 0.0, 0.0], (c, 1)),
-        point_j=np.tile([0.0, 0.0, 0.0], (c, 1)), normal=np.tile([0.0, 0.0, 1.0], (c, 1)),
-        tangent=np.tile([1.0, 0.0, 0.0], (c, 1)), mode=np.full(c, LOCKED, np.int8),
-        gap=np.zeros(c), key=np.zeros((c, 4), np.int64), face_tag=np.zeros(c, np.int64),
-        joint_material=np.zeros(c, np.int64), cand_indptr=np.zeros(c + 1, np.int64),
-        cand_normals=np.zeros((0, 3)))
-    v0, v1 = np.zeros((4, 12)), np.zeros((4, 12))
+        block_i=np.array([1, 2, 3, 4]), block_j=np.zeros(c, np.int64),
+        kind=np.zeros(c, np.int8), point_i=np.zeros((c, 3)), point_j=np.zeros((c, 3)),
+        normal=np.tile([0.0, 0.0, 1.0], (c, 1)), tangent=np.tile([1.0, 0.0, 0.0], (c, 1)),
+        mode=np.full(c, LOCKED, np.int8), gap=np.zeros(c), key=np.zeros((c, 4), np.int64),
+        face_tag=np.zeros(c, np.int64), joint_material=np.zeros(c, np.int64),
+        cand_indptr=np.zeros(c + 1, np.int64), cand_normals=np.zeros((0, 3)))
+    v0, v1 = np.zeros((5, 12)), np.zeros((5, 12))
     v0[1, :3], v1[1, :3] = [0.1, 0.0, -0.2], [0.05, 0.0, 0.1]    # bounces, slides on
     v0[2, :3], v1[2, :3] = [0.1, 0.0, -0.1], [-0.1, 0.0, -0.05]  # shear ring, still closing
     v0[3, :3], v1[3, :3] = [0.1, 0.02, 0.0], [0.2, 0.03, 0.0]    # slides one way
-    before = SimpleNamespace(velocity=v0, centroid=np.zeros((4, 3)))
+    v0[4, :3], v1[4, :3] = [0.0, 0.0, 0.01], [0.0, 0.0, 0.02]    # parts: a rebound
+    before = SimpleNamespace(velocity=v0, centroid=np.zeros((5, 3)))
     ring_n, ring_t = ringing(before, contacts, v1)
-    assert ring_n.tolist() == [True, False, False]
-    assert ring_t.tolist() == [False, True, False]
+    assert ring_n.tolist() == [True, False, False, True]
+    assert ring_t.tolist() == [False, True, False, False]
 
 
 def test_step_results_forces_and_dissipation() -> None:
