@@ -115,6 +115,21 @@ def run_timestep(out: Path, full: bool) -> dict[str, Any]:
     return data
 
 
+def timestep_part(data: dict[str, Any]) -> str:
+    """Section 4b of REPORT.md: one block of :func:`describe` per scene."""
+    lines = ["## 4b. Why Δt is what it is on a cut rock mass", "",
+             "The jointed cube (`examples/jointed_cube.json`: 12 m, three persistent sets, "
+             "fixed base, penalty 1e11, asked Δt 1 ms) stepped through a short simulated "
+             "time: what limited each step's Δt (`Diagnostics.limited_by`: a cut in the step "
+             "by its reason, a cut kept from the step before, regrowth by ×1.5, held by the "
+             "step before's open/closed changes, the asked Δt), and the linear solves and K "
+             "factorizations per step (failed attempts included). Reproduce one scene with "
+             "`python -m benchmarks.timestep SPACING SIMULATED_S`.", ""]
+    for r in data["rows"]:
+        lines += [f"**{r['scene']}**", "", "```", describe(r), "```", ""]
+    return "\n".join(lines)
+
+
 if __name__ == "__main__":
     args = [float(a) for a in sys.argv[1:3]]
     simulated = args[1] if len(args) > 1 else 0.01
