@@ -4,7 +4,8 @@ and regenerate REPORT.md, the charts and the CSVs.
 Sections: accuracy (cases incline, wedge0, wedge10, fall, pushed can be named alone),
 peers, stability (or one of its cases by name), trust (the stability map v2 of issue 12:
 start states, the examples' own Δt and penalty, the jointed slope; or one of its scenes by
-name), scaling, savings, components (cutting and contact detection on their own). The
+name), scaling, timestep (what limits Δt on a cut rock mass), savings, components (cutting
+and contact detection on their own). The
 quick default runs a small grid of each; `--full` runs everything. Sections not run keep
 their previous numbers (stored in `results/<section>.json`), and the report says when they
 were made.
@@ -24,10 +25,11 @@ from typing import Any
 
 import numpy as np
 
-from benchmarks import cases, components, peers, scaling, stability, trust
+from benchmarks import cases, components, peers, scaling, stability, timestep, trust
 from benchmarks import harness as h
 
-SECTIONS = ("accuracy", "peers", "stability", "trust", "scaling", "savings", "components")
+SECTIONS = ("accuracy", "peers", "stability", "trust", "scaling", "timestep", "savings",
+            "components")
 #: scenes of the trust section that can be named alone
 TRUST_NAMES = (*trust.MAP_SCENES, *trust.EXAMPLE_SWEEPS, "jointed_slope")
 
@@ -428,6 +430,9 @@ def write_report(out: Path, report: Path, meta: dict[str, Any]) -> None:
         failures += fl
     else:
         parts += ["## 4. Scaling", "", "(section not run)", ""]
+    ts = h.load_json(out, "timestep")
+    parts += [timestep.timestep_part(ts) if ts else
+              "## 4b. Why Δt is what it is on a cut rock mass\n\n(section not run)", ""]
     parts += [savings_part(sv) if sv else "## 5. No more than a scene needs\n\n(section not run)",
               ""]
     cp = h.load_json(out, "components")
@@ -510,6 +515,11 @@ def main(argv: list[str] | None = None) -> int:
         scaling.run_scaling(out, args.full)
         ran.append("scaling")
         stamps["scaling"] = f"{mode}, {now}"
+    if "timestep" in only:
+        print("[timestep]", flush=True)
+        timestep.run_timestep(out, args.full)
+        ran.append("timestep")
+        stamps["timestep"] = f"{mode}, {now}"
     if "savings" in only:
         print("[savings]", flush=True)
         scaling.run_savings(out, args.full)

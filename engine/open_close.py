@@ -255,6 +255,7 @@ def _cycle(system: BlockSystem, state: State, t: _Terms, m: _Modes, lin: _Linear
     """Solve with the contact terms of the current modes, then Table 2 for every contact."""
     diag = state.diagnostics
     if lin.update(m.mode, m.cn):
+        diag.factorizations += 1
         clock = diag.tick("assembly", clock)
     # contact forces on block i (on j the opposite), as generalized loads
     f = f_block.copy()
@@ -263,6 +264,7 @@ def _cycle(system: BlockSystem, state: State, t: _Terms, m: _Modes, lin: _Linear
                                    system.kn, system.ks, m.cn, dt)
     clock = diag.tick("assembly", clock)
     x = lin.solve(f)
+    diag.solves += 1
     clock = diag.tick("solve", clock)
     dr = relative_displacement(x, t.dmap, t.bi, t.bj, t.ti, t.tj)
     out = update_modes(t.d0, t.normal, dr, t.shear0, m.offset, m.mode, m.tangent, m.broken,

@@ -94,6 +94,8 @@ def summary(system: BlockSystem, state: State, status: str, message: str,
         "max_penetration": d.max_penetration, "warnings": warnings(system, state),
         "blocks": blocks, **_bolt_summary(system, state), "timings": dict(d.timings),
         "relaxed_contacts": d.relaxed_contacts, "time_step_cuts": dict(d.cuts),
+        "time_step_limited_by": dict(d.limited_by),
+        "solves": {"solves": d.solves, "factorizations": d.factorizations},
         "initial_overlap": {"largest": d.initial_overlap, "contacts": d.initial_overlaps},
         "energy": {"created": d.max_energy_created, "scale": d.energy_scale,
                    "created_ratio": d.max_energy_created / d.energy_scale

@@ -105,8 +105,10 @@ class Simulation:
             except StepFailure as exc:
                 attempt = stepping.cut(system, state, attempt, exc)
         self.state = after
-        self.state.dt = stepping.next_time_step(system, state, res, attempt.dt)
+        self.state.dt, self.state.diagnostics.dt_reason = stepping.next_time_step(
+            system, state, res, attempt.dt)
         self.state.last_dt = attempt.dt
+        stepping.count_limit(self.state, attempt)
         self.state.diagnostics.tick("update", clock)
         return res
 

@@ -69,13 +69,25 @@ def _zero_energies() -> dict[str, float]:
 class Diagnostics:
     """What a run observed about itself: deepest penetration (m) and its ratio to the
     thinner block's thickness, contacts found implausibly deep and relaxed, the Δt cuts by
-    reason, wall time (s) per phase (detection, assembly, solve, open_close, update,
-    output), the blocks' initial overlaps and the energy balance."""
+    reason, what limited each step's Δt, the linear solves and K factorizations of the
+    open-close iterations (failed attempts included), wall time (s) per phase (detection,
+    assembly, solve, open_close, update, output), the blocks' initial overlaps and the
+    energy balance."""
 
     max_penetration: float = 0.0
     max_penetration_ratio: float = 0.0
     relaxed_contacts: int = 0
     cuts: dict[str, int] = field(default_factory=dict)
+    #: steps by what limited their Δt (:data:`engine.stepping.LIMITS`): the asked Δt, the
+    #: run's end, a cut in the step (by the cut's reason), a cut kept from the step before,
+    #: regrowth after a cut, or held because the step before changed many contacts
+    limited_by: dict[str, int] = field(default_factory=dict)
+    #: why the state's Δt (the next step's) is what it is, decided by the step before
+    dt_reason: str = "asked"
+    #: linear solves and K factorizations of the open-close iterations, failed attempts
+    #: included (what a step costs beyond detection)
+    solves: int = 0
+    factorizations: int = 0
     timings: dict[str, float] = field(default_factory=dict)
     #: deepest overlap of the blocks as given (m; their springs start unstretched) and how
     #: many contacts had one

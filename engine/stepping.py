@@ -19,6 +19,13 @@ from engine.system import BlockSystem
 DT_CUT = 0.3
 DT_GROW = 1.5
 
+#: what limits a step's Δt (counted per step in `Diagnostics.limited_by`): the asked Δt;
+#: the run's end; a cut in the step itself ("cut:" and the failure's reason, e.g.
+#: "cut:open_close"); a cut kept from the step before; regrowth by DT_GROW after a cut,
+#: still below the asked Δt; held because the step before had more than half the allowed
+#: open/closed changes
+LIMITS = ("asked", "end_of_run", "cut:<reason>", "kept_cut", "regrowth", "mode_changes")
+
 
 class SearchWider(Exception):
     """Blocks moved further than their limit predicted: detect again, wider, same Δt."""
@@ -26,11 +33,12 @@ class SearchWider(Exception):
 
 @dataclass
 class Attempt:
-    """One attempt at a step: its time step `dt` s and each block's displacement limit
-    `limit (n,)` m (what its contact search covers)."""
+    """One attempt at a step: its time step `dt` s, each block's displacement limit
+    `limit (n,)` m (what its contact search covers) and what limits `dt` (:data:`LIMITS`)."""
 
     dt: float
     limit: np.ndarray
+    reason: str = "asked"
 
 
 def _allowed(system: BlockSystem, state: State, dt: float, reason: str) -> None:
@@ -42,11 +50,13 @@ def _allowed(system: BlockSystem, state: State, dt: float, reason: str) -> None:
 
 
 def first_attempt(system: BlockSystem, state: State) -> Attempt:
-    """The step's first attempt: the state's Δt (the rest of the run at most)."""
+    """The step's first attempt: the state's Δt (the rest of the run at most), limited by
+    what the step before decided (`Diagnostics.dt_reason`) or by the run's end."""
     remaining = system.controls.duration - state.time
     dt = min(state.dt, remaining) if remaining > 0 else state.dt
     _allowed(system, state, dt, "")
-    return Attempt(dt, step_limit(system, state, dt))
+    reason = "end_of_run" if dt < state.dt else state.diagnostics.dt_reason
+    return Attempt(dt, step_limit(system, state, dt), reason)
 
 
 def reach(system: BlockSystem, state: State, attempt: Attempt) -> np.ndarray:
@@ -97,17 +107,25 @@ def cut(system: BlockSystem, state: State, attempt: Attempt, exc: StepFailure) -
     cuts[exc.reason] = cuts.get(exc.reason, 0) + 1
     dt = attempt.dt * DT_CUT
     _allowed(system, state, dt, str(exc))
-    return Attempt(dt, attempt.limit)
+    return Attempt(dt, attempt.limit, f"cut:{exc.reason}")
 
 
-def next_time_step(system: BlockSystem, before: State, res: StepResult, dt: float) -> float:
-    """The Δt the next step tries after a step of `dt` s from `before`: a cut is kept
-    (unless it only shortened the run's last step), and Δt grows back by DT_GROW after easy
-    steps (at most half the allowed open/closed changes)."""
+def next_time_step(system: BlockSystem, before: State, res: StepResult,
+                   dt: float) -> tuple[float, str]:
+    """The Δt the next step tries after a step of `dt` s from `before`, and what limits it
+    (:data:`LIMITS`): a cut is kept (unless it only shortened the run's last step), and Δt
+    grows back by DT_GROW after easy steps (at most half the allowed open/closed changes)."""
     c = system.controls
     remaining = c.duration - before.time
     if dt < before.dt and dt < remaining:
-        return dt
+        return dt, "kept_cut"
     if res.mode_changes <= c.max_open_close_iterations // 2:
-        return min(c.time_step, before.dt * DT_GROW)
-    return before.dt
+        grown = min(c.time_step, before.dt * DT_GROW)
+        return grown, "asked" if grown >= c.time_step else "regrowth"
+    return before.dt, "asked" if before.dt >= c.time_step else "mode_changes"
+
+
+def count_limit(state: State, attempt: Attempt) -> None:
+    """Count the step's Δt under what limited it (`Diagnostics.limited_by`)."""
+    limited = state.diagnostics.limited_by
+    limited[attempt.reason] = limited.get(attempt.reason, 0) + 1
