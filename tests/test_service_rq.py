@@ -14,9 +14,9 @@ import pytest
 
 from engine.results import open_result
 from tests.service_helpers import (
+    RedisServer,
     Server,
     cube_scene,
-    free_port,
     job_row,
     pid_alive,
     process_env,
@@ -31,35 +31,41 @@ pytestmark = pytest.mark.skipif(
 
 
 @pytest.fixture
-def redis_url(tmp_path: Path) -> Iterator[str]:
-    port = free_port()
-    proc = subprocess.Popen([str(REDIS), "--port", str(port), "--bind", "127.0.0.1",
-                             "--save", "", "--appendonly", "no", "--dir", str(tmp_path)],
-                            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
-    from redis import Redis
-
-    conn = Redis(port=port)
-
-    def up() -> bool:
-        try:
-            return bool(conn.ping())
-        except Exception:
-            return False
-    try:
-        wait_until(up, 10, "redis-server to answer")
-        yield f"redis://127.0.0.1:{port}/0"
-    finally:
-        conn.close()
-        proc.terminate()
-        proc.wait(10)
+def redis_server(tmp_path: Path) -> Iterator[RedisServer]:
+    with RedisServer(tmp_path) as server:
+        yield server
 
 
-def start_worker(data: Path, redis_url: str, name: str, log: Path) -> subprocess.Popen[bytes]:
-    """`polydda worker` configured as docker/compose.yaml does it: by POLYDDA_* variables."""
-    env = {**os.environ, "POLYDDA_DATA_DIR": str(data), "POLYDDA_REDIS_URL": redis_url}
+@pytest.fixture
+def redis_url(redis_server: RedisServer) -> str:
+    return redis_server.url
+
+
+def start_worker(data: Path, redis_url: str, name: str, log: Path,
+                 **env: str) -> subprocess.Popen[bytes]:
+    """`polydda worker` configured as docker/compose.yaml does it: by POLYDDA_* variables
+    (plus `env`)."""
+    env = {**os.environ, "POLYDDA_DATA_DIR": str(data), "POLYDDA_REDIS_URL": redis_url, **env}
     with open(log, "ab") as f:
         return subprocess.Popen(worker_command("--name", name), env=env, cwd=log.parent,
                                 stdout=f, stderr=subprocess.STDOUT)
+
+
+def stop_workers(workers: list[subprocess.Popen[bytes]]) -> None:
+    for w in workers:
+        if w.poll() is None:
+            w.terminate()
+    for w in workers:
+        try:
+            w.wait(20)
+        except subprocess.TimeoutExpired:
+            w.kill()
+            w.wait(10)
+
+
+def parent_pid(pid: int) -> int:
+    """The parent of process `pid` (from /proc)."""
+    return int(Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[1])
 
 
 def test_jobs_run_on_rq_workers(tmp_path: Path, redis_url: str) -> None:
@@ -102,14 +108,7 @@ def test_jobs_run_on_rq_workers(tmp_path: Path, redis_url: str) -> None:
             assert c.get(long_url + "/results").json()["partial"] is True
             assert all(w.poll() is None for w in workers)
     finally:
-        for w in workers:
-            w.terminate()
-        for w in workers:
-            try:
-                w.wait(20)
-            except subprocess.TimeoutExpired:
-                w.kill()
-                w.wait(10)
+        stop_workers(workers)
 
 
 def test_burst_worker_with_options(tmp_path: Path, redis_url: str) -> None:
@@ -157,3 +156,109 @@ def test_job_committed_but_not_yet_enqueued_is_left_alone(tmp_path: Path, redis_
     backend.tick()
     assert backend.queue.job_ids == [job.id]
     assert store.get(job.id).status == ACCEPTED
+
+
+# ----------------------------------------------------------------------- issue 15, defect 3
+
+TTL = 2.0  # POLYDDA_RQ_HEARTBEAT_TTL of these tests (API and workers): s of silence = lost
+
+
+def test_a_sigkilled_workers_job_is_requeued_and_runs_again(tmp_path: Path,
+                                                            redis_url: str) -> None:
+    """kill -9 the `polydda worker` running a job: its work horse dies with it (no orphan
+    runs on), the API re-queues the job within TTL + a few supervisor ticks, the other
+    worker runs it again to success (attempt 2) into the same files.
+
+    Before: the horse ran on as an orphan and the job stayed `running` for minutes."""
+    data = tmp_path / "shared"
+    env = {"POLYDDA_RQ_HEARTBEAT_TTL": str(TTL)}
+    workers = [start_worker(data, redis_url, f"k{k}-{os.getpid()}", tmp_path / f"w{k}.log",
+                            **env) for k in range(2)]
+    try:
+        with Server(data, POLYDDA_BACKEND="rq", POLYDDA_REDIS_URL=redis_url, **env) as srv, \
+                httpx.Client(base_url=srv.url, timeout=30) as c:
+            url = c.post("/jobs", json=cube_scene(duration=1.0)).headers["Location"]
+            job_id = url.rsplit("/", 1)[1]
+            wait_until(lambda: (c.get(url).json()["step"] or 0) > 5, 90, "the job to run")
+            horse = wait_until(lambda: job_row(data, job_id)["worker_pid"], 10, "its pid")
+            (victim,) = [w for w in workers if w.pid == parent_pid(horse)]
+            t0 = time.monotonic()
+            victim.kill()
+            victim.wait(10)
+            wait_until(lambda: not pid_alive(horse), 5, "the work horse to die with its worker")
+            horse_gone = time.monotonic() - t0
+
+            def requeued() -> bool:
+                doc = c.get(url).json()
+                return doc["status"] == "accepted" or doc["attempts"] >= 2
+            wait_until(requeued, TTL + 10, "the job to be re-queued")
+            requeue = time.monotonic() - t0
+            doc = wait_final(c, url, 120)
+            print(f"\nworker SIGKILL: horse gone {horse_gone:.2f} s, job re-queued "
+                  f"{requeue:.2f} s after the kill (heartbeat TTL {TTL:g} s), successful "
+                  f"{time.monotonic() - t0:.1f} s after it")
+            assert doc["status"] == "successful", (doc, (tmp_path / "w0.log").read_text()[-3000:])
+            assert doc["attempts"] == 2
+            assert requeue < TTL + 4, requeue
+            assert c.get(url + "/results").json()["summary"]["steps"] == 1000
+            (survivor,) = [w for w in workers if w is not victim]
+            assert survivor.poll() is None
+    finally:
+        stop_workers(workers)
+
+
+def test_a_job_whose_worker_is_lost_is_requeued_a_bounded_number_of_times(
+        tmp_path: Path, redis_url: str) -> None:
+    """The supervisor alone (no worker): a running job with no heartbeat goes back to the
+    queue until `max_attempts` runs were lost, then fails saying so; a cancelled one ends
+    dismissed. A job whose heartbeat is alive, or that just started, is left alone."""
+    from service.backends.rq import RqBackend
+    from service.backends.store import ACCEPTED, DISMISSED, FAILED, RUNNING, JobStore
+    from service.jobs import alive_key, job_key
+    from service.settings import Settings
+
+    settings = Settings(data_dir=tmp_path, backend="rq", redis_url=redis_url,
+                        rq_heartbeat_ttl=0.5, max_attempts=2)
+    store = JobStore(settings.db_path)
+    backend = RqBackend(settings, store)
+    job, _ = store.submit(process="simulation", scene="{}", client="c", quota=4)
+    backend.submitted(job)
+    r = backend.redis
+    r.lpop(backend.queue.key)  # a worker took it ...
+
+    def run(attempt: int, beat: bool = False) -> None:
+        """A worker beats, writes `running` (attempt `attempt`), then dies (its heartbeat
+        key lives 0.3 s) unless `beat`."""
+        r.set(alive_key(job.id), 1, px=60_000 if beat else 300)
+        r.hset(job_key(job.id), mapping={"status": '"running"', "updated": str(time.time())})
+        backend.tick()
+        assert store.get(job.id).status == RUNNING and store.get(job.id).attempts == attempt
+
+    run(1, beat=True)
+    time.sleep(0.7)
+    backend.tick()
+    assert store.get(job.id).status == RUNNING  # its heartbeat lives
+    r.delete(alive_key(job.id))
+    backend.tick()
+    time.sleep(0.7)
+    backend.tick()
+    rec = store.get(job.id)
+    assert rec.status == ACCEPTED and "re-queued" in rec.message, rec
+    assert backend.queue.job_ids == [job.id]
+    r.lpop(backend.queue.key)
+    run(2)
+    time.sleep(0.7)
+    backend.tick()
+    rec = store.get(job.id)
+    assert rec.status == FAILED and rec.error_kind == "system", rec
+    assert "2 times; not retried again" in rec.message
+    assert len(backend.queue) == 0
+    # cancelled while its worker died: dismissed, not failed
+    job, _ = store.submit(process="simulation", scene="{}", client="c", quota=4)
+    backend.submitted(job)
+    r.lpop(backend.queue.key)
+    run(1)
+    backend.cancel(job.id)
+    time.sleep(0.7)
+    backend.tick()
+    assert store.get(job.id).status == DISMISSED
