@@ -95,6 +95,7 @@ class RedisContext(TaskContext):
         self.key, self.cancel_key = job_key(job_id), cancel_key(job_id)
         self.heartbeat_ttl, self.parent_pid = heartbeat_ttl, parent_pid
         self.orphaned = False
+        self.progress_lost = False  # progress writes fail (said once, until one succeeds)
         self._beating = threading.Event()
         self._thread: threading.Thread | None = None
 
@@ -104,7 +105,14 @@ class RedisContext(TaskContext):
         try:
             self.set(values | {"updated": time.time()})
         except RedisError as exc:
-            log.warning("progress of job %s not written: %s", self.job_id, exc)
+            if not self.progress_lost:
+                log.warning("progress of job %s not written (%s); the job goes on, progress "
+                            "is skipped until Redis answers", self.job_id, exc)
+            self.progress_lost = True
+            return
+        if self.progress_lost:
+            log.info("progress of job %s written again", self.job_id)
+            self.progress_lost = False
 
     def set(self, values: dict[str, Any]) -> None:
         """Write fields of the job's hash (raises RedisError)."""

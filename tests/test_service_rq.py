@@ -262,3 +262,76 @@ def test_a_job_whose_worker_is_lost_is_requeued_a_bounded_number_of_times(
     time.sleep(0.7)
     backend.tick()
     assert store.get(job.id).status == DISMISSED
+
+
+# ----------------------------------------------------------------------- issue 15, defect 4
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("persist", [False, True], ids=["redis-comes-back-empty",
+                                                        "redis-keeps-its-data"])
+def test_workers_and_the_api_ride_out_a_redis_outage(tmp_path: Path, persist: bool) -> None:
+    """Redis crashes (SIGKILL) for 10 s while two workers are busy: the workers stay up (no
+    traceback) and reconnect; /health says 503 `unavailable` during the outage and
+    reports Redis and the live workers; a job cancelled during the outage ends dismissed;
+    the other job runs on through the outage (same attempt, not re-queued); a job
+    submitted after Redis is back runs.
+
+    Before: the workers exited with a traceback (their jobs with them), /health said ok
+    throughout, the new job stayed `accepted`."""
+    data = tmp_path / "shared"
+    env = {"POLYDDA_RQ_HEARTBEAT_TTL": str(TTL)}
+    with RedisServer(tmp_path, persist=persist) as redis:
+        workers = [start_worker(data, redis.url, f"o{k}-{os.getpid()}", tmp_path / f"w{k}.log",
+                                **env) for k in range(2)]
+        try:
+            with Server(data, POLYDDA_BACKEND="rq", POLYDDA_REDIS_URL=redis.url, **env) as srv, \
+                    httpx.Client(base_url=srv.url, timeout=30) as c:
+                health = wait_until(lambda: (h := c.get("/health").json())["workers"] == 2
+                                    and h, 30, "the workers in /health")
+                assert health["status"] == "ok" and health["redis"] == "ok", health
+                cancelled, kept = (c.post("/jobs", json=cube_scene(duration=60)).headers[
+                    "Location"] for _ in range(2))
+                for u in (cancelled, kept):
+                    wait_until(lambda u=u: (c.get(u).json()["step"] or 0) > 5, 90, "jobs to run")
+                assert c.get("/health").json()["busy"] == 2
+                redis.kill()
+                t_down = time.monotonic()
+                step = c.get(kept).json()["step"]
+                r = c.get("/health")
+                assert r.status_code == 503, r.text
+                assert r.json()["status"] == "unavailable"
+                assert r.json()["redis"].startswith("unreachable"), r.json()
+                assert c.delete(cancelled).status_code in (200, 202)  # recorded by the API
+                time.sleep(max(0.0, 10 - (time.monotonic() - t_down)))
+                assert all(w.poll() is None for w in workers)
+                redis.start()
+                t_up = time.monotonic()
+                doc = wait_final(c, cancelled, 60)
+                dismissed = time.monotonic() - t_up
+                assert doc["status"] == "dismissed", doc
+                wait_until(lambda: c.get("/health").json()["workers"] == 2, 30,
+                           "the workers to be back in /health")
+                back = time.monotonic() - t_up
+                new = c.post("/jobs", json=cube_scene(duration=0.05))
+                assert new.status_code == 201, new.text
+                done = wait_final(c, new.headers["Location"], 60)
+                ran = time.monotonic() - t_up
+                assert done["status"] == "successful", done
+                time.sleep(max(0.0, TTL + 1 - (time.monotonic() - t_up)))
+                doc = c.get(kept).json()
+                assert doc["status"] == "running" and doc["attempts"] == 1, doc
+                assert doc["step"] > step
+                print(f"\nRedis outage ({'kept' if persist else 'lost'} its data): cancel "
+                      f"dismissed {dismissed:.2f} s, workers back in /health {back:.2f} s, a "
+                      f"new job done {ran:.2f} s after Redis returned; the other job ran on "
+                      f"from step {step} to {doc['step']}")
+                assert c.get("/health").json()["status"] == "ok"
+                c.delete(kept)
+                assert wait_final(c, kept, 30)["status"] == "dismissed"
+            assert all(w.poll() is None for w in workers)
+        finally:
+            stop_workers(workers)
+    for k in range(2):
+        log = (tmp_path / f"w{k}.log").read_text()
+        assert "Traceback" not in log, log[-3000:]
