@@ -9,6 +9,7 @@ from __future__ import annotations
 
 from collections.abc import Iterator
 from pathlib import Path
+from typing import Any
 
 import pytest
 
@@ -53,4 +54,54 @@ def test_server_still_healthy(server: Server) -> None:
 
     assert httpx.get(server.url + "/health", timeout=10).json()["status"] == "ok"
     log = Path(server.log).read_text(errors="replace")
+    assert "Traceback" not in log, log[-3000:]
+
+
+@pytest.fixture(scope="module")
+def linked_server(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Server]:
+    """As `server`, with a quota no sequence reaches (a 429 here or there would make the
+    sequences Hypothesis replays behave differently)."""
+    data = tmp_path_factory.mktemp("linked") / "data"
+    env = {"POLYDDA_MAX_DURATION": "0.01", "POLYDDA_MAX_VERTICES": "200",
+           "POLYDDA_MAX_BODY_BYTES": "65536", "POLYDDA_CLIENT_QUOTA": "100000",
+           "POLYDDA_MAX_WORKERS": "1"}
+    with Server(data, **env) as srv:
+        yield srv
+
+
+def test_api_answers_call_sequences_that_follow_its_links(linked_server: Server) -> None:
+    """Stateful: the fuzzer creates jobs and follows the OpenAPI links of the answers
+    (status, events, results, plots, contacts, frames, viewer, dismissal) with the real job
+    ids, so those operations are fuzzed beyond 404s. Created jobs get a small valid scene
+    (a generated one is rarely runnable; the stateless test fuzzes the bodies)."""
+    from schemathesis.checks import positive_data_acceptance
+
+    from tests.service_helpers import cube_scene
+
+    seen: list[tuple[str, int]] = []
+    base = schemathesis.openapi.from_url(linked_server.url + "/openapi.json").as_state_machine()
+
+    def op_id(case: Any) -> str:
+        return str(case.operation.definition.raw.get("operationId"))
+
+    class Linked(base):  # type: ignore[misc, valid-type]
+        def before_call(self, case: Any) -> None:
+            if op_id(case) in ("createJob", "executeProcess"):
+                case.body = cube_scene(duration=0.01)
+
+        def after_call(self, response: Any, case: Any) -> None:
+            seen.append((op_id(case), response.status_code))
+
+        def validate_response(self, response: Any, case: Any, additional_checks: Any = None,
+                              **kwargs: Any) -> None:
+            case.validate_response(response, additional_checks=additional_checks,
+                                   excluded_checks=[positive_data_acceptance],
+                                   transport_kwargs=kwargs or None)
+
+    Linked.run(settings=settings(max_examples=30, stateful_step_count=6, deadline=None,
+                                 derandomize=True, suppress_health_check=list(HealthCheck)))
+    found = {op for op, code in seen if 200 <= code < 300}
+    print(f"\nstateful: {len(seen)} calls; operations answered 2xx: {sorted(found)}")
+    assert {"getJob", "getResults"} <= found, seen
+    log = Path(linked_server.log).read_text(errors="replace")
     assert "Traceback" not in log, log[-3000:]
