@@ -262,6 +262,17 @@ def test_a_job_whose_worker_is_lost_is_requeued_a_bounded_number_of_times(
     time.sleep(0.7)
     backend.tick()
     assert store.get(job.id).status == DISMISSED
+    # a broken RQ record (Redis came back empty, then a late write of the job's end) of one
+    # job does not stop the supervision of the others
+    job, _ = store.submit(process="simulation", scene="{}", client="c", quota=4)
+    backend.submitted(job)
+    r.lpop(backend.queue.key)
+    other, _ = store.submit(process="simulation", scene="{}", client="c", quota=4)
+    r.hset(f"rq:job:{other.id}", mapping={"status": "finished", "ended_at": "x"})
+    run(1)
+    time.sleep(0.7)
+    backend.tick()
+    assert "re-queued" in store.get(job.id).message
 
 
 # ----------------------------------------------------------------------- issue 15, defect 4

@@ -232,20 +232,21 @@ class RqBackend(Backend):
     def _fetch(self, ids: list[str]) -> list[Any]:
         """RQ's jobs of these ids (None where Redis has none, or only a broken record:
         after Redis came back empty, a late write can leave a job hash without its data)."""
+        from redis.exceptions import RedisError
         from rq.job import Job
 
         try:
             return Job.fetch_many(ids, connection=self.redis)
-        except Exception:
-            out = []
+        except RedisError:
+            raise
+        except Exception:  # one broken record: the others one by one
+            out: list[Any] = []
             for job_id in ids:
                 try:
                     out.append(Job.fetch_many([job_id], connection=self.redis)[0])
-                except Exception as exc:
-                    from redis.exceptions import RedisError
-
-                    if isinstance(exc, RedisError):
-                        raise
+                except RedisError:
+                    raise
+                except Exception:
                     out.append(None)
             return out
 
