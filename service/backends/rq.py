@@ -168,13 +168,15 @@ class RqBackend(Backend):
                             "back", exc)
             self.redis_away, self.reachable_since = True, None
 
-    def _settled(self, uptime: float) -> bool:
+    def _settled(self, uptime: float, latency: float) -> bool:
         """True when Redis has answered (and run) for a whole heartbeat TTL: a heartbeat
-        key missing now means its job's process stopped beating, not that Redis lost it."""
+        key missing now means its job's process stopped beating, not that Redis lost it.
+        An answer that took over a third of the TTL counts as an outage just ended (Redis
+        hung, and the beats were held up with our question)."""
         if self.redis_away:
             log.warning("Redis reachable again")
             self.redis_away = False
-        if self.reachable_since is None:
+        if self.reachable_since is None or latency > self.settings.rq_heartbeat_ttl / 3:
             self.reachable_since = time.monotonic()
         up = min(uptime, time.monotonic() - self.reachable_since)
         return up >= self.settings.rq_heartbeat_ttl
@@ -187,8 +189,10 @@ class RqBackend(Backend):
         for job in jobs:
             pipe.hgetall(job_key(job.id))
             pipe.exists(alive_key(job.id))
+        t0 = time.monotonic()
         replies = pipe.execute()
-        settled = self._settled(float(self.redis.info("server")["uptime_in_seconds"]))
+        latency = time.monotonic() - t0
+        settled = self._settled(float(self.redis.info("server")["uptime_in_seconds"]), latency)
         rq_jobs = self._fetch([j.id for j in jobs])
         now = time.time()
         for job, raw, alive, rq_job in zip(jobs, replies[::2], replies[1::2], rq_jobs,
