@@ -275,6 +275,29 @@ def test_a_job_whose_worker_is_lost_is_requeued_a_bounded_number_of_times(
     assert "re-queued" in store.get(job.id).message
 
 
+def test_a_run_given_up_for_lost_stops_when_the_job_runs_again(redis_url: str) -> None:
+    """A work horse cut off from Redis longer than the TTL (its job re-queued meanwhile)
+    stops as soon as it sees that the job's hash names another run; a cancel still reads
+    as a cancel."""
+    import json
+
+    from redis import Redis
+
+    from service.jobs import RedisContext, cancel_key, job_key
+
+    with Redis.from_url(redis_url) as r:
+        ctx = RedisContext(r, "j1")
+        ctx.set_final({"status": "running", "run": ctx.run})
+        assert not ctx.should_stop()
+        r.hset(job_key("j1"), "run", json.dumps("another-run"))
+        time.sleep(ctx.poll)
+        assert ctx.should_stop() and ctx.orphaned
+        ctx = RedisContext(r, "j2")
+        ctx.set_final({"status": "running", "run": ctx.run})
+        r.set(cancel_key("j2"), 1)
+        assert ctx.should_stop() and not ctx.orphaned
+
+
 # ----------------------------------------------------------------------- issue 15, defect 4
 
 

@@ -342,6 +342,7 @@ def test_sweep_jobs_on_rq_workers(tmp_path: Path) -> None:
 
 
 @pytest.mark.slow
+@pytest.mark.ci
 @pytest.mark.skipif(REDIS is None, reason="redis-server is not installed")
 def test_killing_one_rq_worker_mid_sweep_loses_no_realisation(tmp_path: Path) -> None:
     """A sweep in two shares on two `polydda worker`s; the worker running the first share
