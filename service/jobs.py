@@ -22,6 +22,7 @@ import os
 import signal
 import threading
 import time
+import uuid
 from pathlib import Path
 from typing import Any
 
@@ -85,7 +86,9 @@ class RedisContext(TaskContext):
 
     Progress writes that fail are skipped (the next one carries the news); a cancel check
     that fails says "go on"; a heartbeat thread refreshes `alive_key` every third of
-    `heartbeat_ttl` s; the job stops by itself when its parent (the worker) is gone.
+    `heartbeat_ttl` s; the job stops by itself when its parent (the worker) is gone, or
+    when the job's hash names another run (`run`: this one was given up for lost, e.g. its
+    host was cut off longer than the TTL, and the job was re-queued and started again).
     """
 
     def __init__(self, connection: Any, job_id: str, interval: float = 0.25,
@@ -95,6 +98,8 @@ class RedisContext(TaskContext):
         self.key, self.cancel_key = job_key(job_id), cancel_key(job_id)
         self.heartbeat_ttl, self.parent_pid = heartbeat_ttl, parent_pid
         self.orphaned = False
+        self.run = uuid.uuid4().hex  # this run's token in the job's hash
+        self.progress_lost = False  # progress writes fail (said once, until one succeeds)
         self._beating = threading.Event()
         self._thread: threading.Thread | None = None
 
@@ -104,7 +109,14 @@ class RedisContext(TaskContext):
         try:
             self.set(values | {"updated": time.time()})
         except RedisError as exc:
-            log.warning("progress of job %s not written: %s", self.job_id, exc)
+            if not self.progress_lost:
+                log.warning("progress of job %s not written (%s); the job goes on, progress "
+                            "is skipped until Redis answers", self.job_id, exc)
+            self.progress_lost = True
+            return
+        if self.progress_lost:
+            log.info("progress of job %s written again", self.job_id)
+            self.progress_lost = False
 
     def set(self, values: dict[str, Any]) -> None:
         """Write fields of the job's hash (raises RedisError)."""
@@ -140,9 +152,18 @@ class RedisContext(TaskContext):
             self.orphaned = True
             return True
         try:
-            return bool(self.redis.exists(self.cancel_key))
+            pipe = self.redis.pipeline()
+            pipe.exists(self.cancel_key)
+            pipe.hget(self.key, "run")
+            cancelled, run = pipe.execute()
         except RedisError:
             return False
+        if run is not None and json.loads(run) != self.run:
+            log.warning("job %s runs again elsewhere (it was given up for lost); this run "
+                        "stops", self.job_id)
+            self.orphaned = True
+            return True
+        return bool(cancelled)
 
     # heartbeat
     def beat(self) -> None:
@@ -201,10 +222,13 @@ def run_rq(job_id: str, process: str, scene_text: str) -> str:
     try:
         now = time.time()
         ctx.set_final({"status": "running", "started": now, "updated": now, "progress": 0.0,
-                       "worker_pid": os.getpid()})  # the work horse, on the worker's host
+                       "worker_pid": os.getpid(),  # the work horse, on the worker's host
+                       "run": ctx.run})
         outcome = execute(process, scene_text, settings.job_dir(job_id), ctx)
-        if ctx.orphaned:  # the worker is gone: the API re-queues the job
-            os._exit(1)
+        if ctx.orphaned:  # the worker is gone (the API re-queues the job), or the job
+            # runs again elsewhere: leave the job's records to the run that owns it (exit
+            # 0: a live worker would otherwise mark the job's RQ record failed)
+            os._exit(0)
         ctx.set_final({"status": outcome.status, "message": outcome.message,
                        "error_kind": outcome.error_kind, "finished": time.time(),
                        "updated": time.time()})

@@ -64,7 +64,9 @@ def argv_of(args: argparse.Namespace) -> list[str]:
 def run(args: argparse.Namespace) -> int:
     """Run one RQ worker until it is stopped (or the queue is empty with --burst).
 
-    Exit code 0; 2 for a malformed Redis URL; 1 when Redis cannot be reached.
+    Redis must answer at the start; later outages are ridden out (reconnecting with
+    backoff, service.backends.rq_worker). Exit code 0; 2 for a malformed Redis URL; 1 when
+    Redis cannot be reached at the start.
     """
     from service.settings import Settings
 
@@ -89,15 +91,16 @@ def run(args: argparse.Namespace) -> int:
     # load the engine once here; each job's work horse is a fork of this process
     from redis import Redis
     from redis.exceptions import ConnectionError as RedisConnectionError
-    from rq import Queue, Worker
+    from rq import Queue
 
     import engine.results  # noqa: F401
     import engine.simulation  # noqa: F401
     import schemas.convert  # noqa: F401
     import service.jobs  # noqa: F401
+    from service.backends.rq_worker import PolyddaWorker
 
     try:
-        conn = Redis.from_url(settings.redis_url)
+        conn = Redis.from_url(settings.redis_url, socket_connect_timeout=5)
     except ValueError as exc:
         print(f"polydda worker: bad Redis URL {settings.redis_url!r}: {exc}", file=sys.stderr)
         return 2
@@ -107,8 +110,8 @@ def run(args: argparse.Namespace) -> int:
         print(f"polydda worker: cannot reach Redis at {settings.redis_url}: {exc}",
               file=sys.stderr)
         return 1
-    worker = Worker([Queue(settings.rq_queue, connection=conn)], connection=conn,
-                    name=args.name)
+    worker = PolyddaWorker([Queue(settings.rq_queue, connection=conn)], connection=conn,
+                           name=args.name)
     worker.work(burst=args.burst, max_jobs=args.max_jobs, logging_level=args.log_level)
     return 0
 

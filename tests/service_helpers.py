@@ -168,6 +168,69 @@ def job_row(data_dir: Path, job_id: str) -> dict[str, Any]:
         db.close()
 
 
+class RedisServer:
+    """A throw-away redis-server on a free loopback port that can crash and come back.
+
+    Nothing is persisted unless `persist` (append-only file in `workdir`): a restart after
+    `kill` then comes back empty, like a crashed Redis without a volume.
+    """
+
+    def __init__(self, workdir: Path, persist: bool = False) -> None:
+        self.workdir, self.persist = workdir, persist
+        self.port = free_port()
+        self.url = f"redis://127.0.0.1:{self.port}/0"
+        self.proc: subprocess.Popen[bytes] | None = None
+
+    def start(self, timeout: float = 10.0) -> RedisServer:
+        exe = shutil.which("redis-server")
+        if exe is None:
+            raise RuntimeError("redis-server is not installed")
+        self.proc = subprocess.Popen(
+            [exe, "--port", str(self.port), "--bind", "127.0.0.1", "--save", "",
+             "--appendonly", "yes" if self.persist else "no", "--dir", str(self.workdir)],
+            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+        from redis import Redis
+
+        with Redis(port=self.port, socket_connect_timeout=1) as conn:
+            def up() -> bool:
+                try:
+                    return bool(conn.ping())
+                except Exception:
+                    return False
+            wait_until(up, timeout, "redis-server to answer")
+        return self
+
+    def kill(self) -> None:
+        """SIGKILL: a crash (nothing saved on the way out)."""
+        if self.proc is not None and self.proc.poll() is None:
+            self.proc.kill()
+            self.proc.wait(10)
+
+    def pause(self) -> None:
+        """SIGSTOP: Redis hangs (connections stay open, nothing answers)."""
+        assert self.proc is not None
+        self.proc.send_signal(signal.SIGSTOP)
+
+    def resume(self) -> None:
+        assert self.proc is not None
+        self.proc.send_signal(signal.SIGCONT)
+
+    def stop(self) -> None:
+        if self.proc is not None and self.proc.poll() is None:
+            self.resume()
+            self.proc.terminate()
+            try:
+                self.proc.wait(10)
+            except subprocess.TimeoutExpired:
+                self.kill()
+
+    def __enter__(self) -> RedisServer:
+        return self.start()
+
+    def __exit__(self, *exc: object) -> None:
+        self.stop()
+
+
 class Server:
     """`polydda serve` (the image's command) in a subprocess on a free loopback port."""
 

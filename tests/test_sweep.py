@@ -342,6 +342,68 @@ def test_sweep_jobs_on_rq_workers(tmp_path: Path) -> None:
 
 
 @pytest.mark.slow
+@pytest.mark.ci
+@pytest.mark.skipif(REDIS is None, reason="redis-server is not installed")
+def test_killing_one_rq_worker_mid_sweep_loses_no_realisation(tmp_path: Path) -> None:
+    """A sweep in two shares on two `polydda worker`s; the worker running the first share
+    is SIGKILLed a fifth of the way through it. Its job is re-queued (the same job, attempt
+    2), the surviving worker finishes it, redoing none of the realisations written before
+    the kill; the merged numbers are those of the sweep run locally (and so of the
+    embedded backend)."""
+    import os
+
+    import httpx
+
+    from service.client import sweep_jobs
+    from service.sweep import spec_of_scene
+    from tests.service_helpers import RedisServer, Server, job_row
+    from tests.test_service_rq import parent_pid, start_worker, stop_workers
+
+    n = 10000  # the most a sweep has; eq. 51 takes ~1 ms a realisation: seconds a share
+    scene = sweep_scene(n=n)
+    local = run_sweep(scene, spec_of_scene(scene), tmp_path / "local")
+    data = tmp_path / "shared"
+    env = {"POLYDDA_RQ_HEARTBEAT_TTL": "2"}
+    before: dict[Path, int] = {}
+    killed: list[tuple[str, int, float]] = []
+    with RedisServer(tmp_path) as redis:
+        workers = [start_worker(data, redis.url, f"m{k}-{os.getpid()}", tmp_path / f"w{k}.log",
+                                **env) for k in range(2)]
+
+        def kill_first(done: int, total: int, statuses: list[dict]) -> None:
+            st = statuses[0]
+            if killed:  # sweep_jobs would wait for ever on a job left `running`
+                assert time.monotonic() - killed[0][2] < 120, f"stuck: {statuses}"
+                return
+            if st["status"] != "running" or (st["step"] or 0) < n // 10:
+                return
+            horse = job_row(data, st["jobID"])["worker_pid"]
+            (victim,) = [w for w in workers if w.pid == parent_pid(horse)]
+            victim.kill()
+            victim.wait(10)
+            killed.append((st["jobID"], st["step"], time.monotonic()))
+            time.sleep(0.5)  # the horse dies with its worker; nothing of it is half-written
+            before.update({p: p.stat().st_mtime_ns for p in (data / "sweeps").glob("*/*.json")})
+
+        try:
+            with Server(data, POLYDDA_BACKEND="rq", POLYDDA_REDIS_URL=redis.url, **env) as srv, \
+                    httpx.Client(base_url=srv.url, timeout=60) as c:
+                doc = sweep_jobs(c, scene, 2, tmp_path / "out", on_progress=kill_first,
+                                 poll=0.2)
+                assert killed
+                job = c.get(f"/jobs/{killed[0][0]}").json()
+                assert job["status"] == "successful" and job["attempts"] == 2, job
+        finally:
+            stop_workers(workers)
+    assert [j["status"] for j in doc["jobs"]] == ["successful", "successful"]
+    assert killed[0][0] in doc["jobs"][0]["url"]  # re-queued, not submitted again
+    assert doc["done"] == n and doc["analytic"] == local["analytic"]
+    assert doc["realisations"] == local["realisations"]
+    assert len(before) >= killed[0][1]
+    assert all(p.stat().st_mtime_ns == t for p, t in before.items())
+
+
+@pytest.mark.slow
 def test_sweep_jobs_resubmit_a_share_whose_process_died(tmp_path: Path) -> None:
     """The process of one share is SIGKILLed mid-share (as a dying worker would leave it):
     the job fails for a system reason, `sweep_jobs` submits the share again, and the new job

@@ -182,6 +182,18 @@ def dismiss_job(job: JobDep, store: StoreDep, backend: BackendDep, settings: Set
     return doc
 
 
+#: one server-sent event of /jobs/{id}/events (Open API before 3.2: the schema of a
+#: text/event-stream describes each event)
+SSE_EVENT: dict[str, Any] = {
+    "type": "object", "required": ["data"],
+    "description": "`status`: `data` is the job's statusInfo document as JSON, `id` counts "
+                   "the events; `gone`: the job was removed",
+    "properties": {"event": {"type": "string", "enum": ["status", "gone"]},
+                   "id": {"type": "string"},
+                   "data": {"type": "string", "contentMediaType": "application/json"},
+                   "retry": {"type": "integer", "minimum": 0}}}
+
+
 async def _events(store: JobStore, job_id: str, root: str) -> AsyncIterator[str]:
     """Server-sent events: one `status` event per change, closing after the final one."""
     yield "retry: 2000\n\n"
@@ -209,7 +221,7 @@ async def _events(store: JobStore, job_id: str, root: str) -> AsyncIterator[str]
 @router.get("/jobs/{job_id}/events", tags=["jobs"], response_class=StreamingResponse,
             summary="Progress as server-sent events (ends when the job ends)",
             responses={200: {"description": "`status` events with statusInfo documents",
-                             "content": {"text/event-stream": {"schema": {"type": "string"}}}},
+                             "content": {"text/event-stream": {"schema": SSE_EVENT}}},
                        **problem_responses(401, 404)},
             operation_id="jobEvents")
 def job_events(job: JobDep, store: StoreDep, root: RootDep) -> StreamingResponse:
