@@ -837,7 +837,8 @@ class Result:
             except OSError as exc:
                 if not path.exists():
                     raise
-                errors.append(str(exc))
+                if str(exc) not in errors:
+                    errors.append(str(exc))
         raise OSError(f"cannot open {path}: {'; '.join(errors)}")
 
     # --- bookkeeping

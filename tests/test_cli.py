@@ -249,6 +249,18 @@ def test_run_of_a_bad_scene_exits_2(capsys: pytest.CaptureFixture[str], tmp_path
     assert not (tmp_path / "x.h5").exists()
 
 
+def test_plot_of_a_missing_or_foreign_file_says_so_in_one_line(
+        capsys: pytest.CaptureFixture[str], tmp_path: Path) -> None:
+    """`polydda plot` of a file that is not there, or is not HDF5: one line, exit 1."""
+    code, out, err = run(capsys, "plot", str(tmp_path / "nope.h5"), "--out", str(tmp_path))
+    assert code == 1 and err.strip() == f"polydda plot: no such result file: {tmp_path}/nope.h5"
+    foreign = tmp_path / "scene.h5"
+    foreign.write_text("{}")
+    code, out, err = run(capsys, "plot", str(foreign), "--out", str(tmp_path))
+    assert code == 1 and len(err.strip().splitlines()) == 1
+    assert err.count("file signature not found") == 1
+
+
 def test_plot_chooses_blocks_and_snapshot_times(capsys: pytest.CaptureFixture[str],
                                                 tmp_path: Path) -> None:
     """`polydda plot`: default plots; --blocks (names) for the histories; --time / --step
