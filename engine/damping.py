@@ -121,8 +121,10 @@ def damp_contacts(system: BlockSystem, before: State, res: StepResult, after: St
         over = cshear * vt > headroom * (1.0 + 1e-9)
         if not (np.any(pulling) or np.any(over)):
             break
-        cn = np.where(pulling, pressed / np.maximum(vn, 1e-300), cn)
-        cshear = np.where(over, headroom / np.maximum(vt, 1e-300), cshear)
+        # (pulling and over imply vn, vt > 0: c v exceeds a force ≥ 0)
+        cn, cshear = cn.copy(), cshear.copy()
+        cn[pulling] = pressed[pulling] / vn[pulling]
+        cshear[over] = headroom[over] / vt[over]
     removed = kinetic_energy(v0, mass) - kinetic_energy(v, mass)
     after.velocity = v
     after.energies["damping_dissipation"] += float(removed)
