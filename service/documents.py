@@ -249,11 +249,16 @@ def fos_document(result: FactorOfSafetyResult, build: BuildResult) -> dict[str, 
     jm = c.joint_materials if c.joint_materials is not None else range(
         len(build.joint_material_names))
     doc["joint_materials"] = [build.joint_material_names[k] for k in jm]
-    watched = c.watch_blocks if c.watch_blocks is not None else [
-        k for k, b in enumerate(build.model.blocks) if not b.fixed]
-    doc["watch_blocks"] = [build.block_names[k] for k in watched]
+    doc["watch_blocks"] = _watched_names(build, c.watch_blocks)
     doc["warnings"] = list(build.warnings)
     return finite(doc)
+
+
+def _watched_names(build: BuildResult, watch_blocks: Any) -> list[str]:
+    """Names of the blocks a bisection job watches: the controls' list, or every free block."""
+    watched = watch_blocks if watch_blocks is not None else [
+        k for k, b in enumerate(build.model.blocks) if not b.fixed]
+    return [build.block_names[k] for k in watched]
 
 
 def seismic_controls(build: BuildResult) -> SeismicCoefficientControls:
@@ -268,10 +273,7 @@ def seismic_document(result: SeismicCoefficientResult, build: BuildResult) -> di
     """The critical seismic coefficient answer: kh, azimuth (deg), kv, trials (kh tried,
     verdict, mean acceleration m/s²), status, and the names of the blocks watched."""
     doc = result.as_dict()
-    c = seismic_controls(build)
-    watched = c.watch_blocks if c.watch_blocks is not None else [
-        k for k, b in enumerate(build.model.blocks) if not b.fixed]
-    doc["watch_blocks"] = [build.block_names[k] for k in watched]
+    doc["watch_blocks"] = _watched_names(build, seismic_controls(build).watch_blocks)
     doc["warnings"] = list(build.warnings)
     return finite(doc)
 # --------------------------------------------------------------------------- kinematics
