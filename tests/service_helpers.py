@@ -308,3 +308,13 @@ def synthetic_job(data_dir: Path, n_blocks: int = 1000, n_steps: int = 100,
     store.update(job.id, status="successful", started=now, finished=now, progress=100.0,
                  message=f"synthetic: {n_blocks} blocks, {n_steps} steps")
     return job.id, path
+
+
+def make_client(data_dir: Path, **settings: Any) -> Any:
+    """An in-process client of a fresh app on `data_dir` (two workers, a short cancel
+    grace); `settings` override."""
+    from service.app import create_app
+    from service.settings import Settings
+
+    kw: dict[str, Any] = {"data_dir": data_dir, "max_workers": 2, "cancel_grace": 0.5}
+    return TestClient(create_app(Settings(**(kw | settings))))

@@ -18,8 +18,8 @@ import httpx
 import pytest
 
 from engine.results import open_result
-from service.app import create_app
 from service.settings import Settings
+from tests import service_helpers as helpers
 from tests.service_helpers import (
     Server,
     TestClient,
@@ -38,8 +38,7 @@ PROBLEM = "application/problem+json"
 
 
 def make_client(tmp_path: Path, **settings: Any) -> TestClient:
-    kw: dict[str, Any] = {"data_dir": tmp_path / "data", "max_workers": 2, "cancel_grace": 0.5}
-    return TestClient(create_app(Settings(**(kw | settings))))
+    return helpers.make_client(tmp_path / "data", **settings)
 
 
 @pytest.fixture

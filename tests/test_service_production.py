@@ -15,8 +15,7 @@ import h5py
 import pytest
 from prometheus_client.parser import text_string_to_metric_families
 
-from service.app import create_app
-from service.settings import Settings
+from tests import service_helpers as helpers
 from tests.service_helpers import TestClient, cube_scene, job_row, wait_final, wait_until
 
 PROBLEM = "application/problem+json"
@@ -24,9 +23,7 @@ ALICE, BOB, ADMIN = ({"X-API-Key": k} for k in ("alice-key", "bob-key", "admin-k
 
 
 def make_client(tmp_path: Path, **settings: Any) -> TestClient:
-    kw: dict[str, Any] = {"data_dir": tmp_path / "data", "max_workers": 2, "cancel_grace": 0.5,
-                          "min_free_bytes": 0}
-    return TestClient(create_app(Settings(**(kw | settings))))
+    return helpers.make_client(tmp_path / "data", **({"min_free_bytes": 0} | settings))
 
 
 @pytest.fixture

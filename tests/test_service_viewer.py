@@ -20,24 +20,19 @@ from scipy.spatial.transform import Rotation
 
 from engine.plots import plot_snapshot
 from engine.results import open_result
-from service.app import create_app
 from service.frames import decode_binary
 from service.pages import trend_plunge
 from service.settings import Settings
 from tests.service_helpers import (
     TestClient,
     cube_scene,
+    make_client,
     synthetic_job,
     wait_final,
     wait_until,
 )
 
 PROBLEM = "application/problem+json"
-
-
-def make_client(data_dir: Path, **settings: Any) -> TestClient:
-    kw: dict[str, Any] = {"data_dir": data_dir, "max_workers": 2, "cancel_grace": 0.5}
-    return TestClient(create_app(Settings(**(kw | settings))))
 
 
 @pytest.fixture(scope="module")
