@@ -74,11 +74,9 @@ class ContactSet:
         counts = np.diff(self.cand_indptr)[idx]
         indptr = np.zeros(len(idx) + 1, dtype=np.int64)
         np.cumsum(counts, out=indptr[1:])
-        cand = (
-            np.concatenate([self.cand_normals[self.cand_indptr[k]:self.cand_indptr[k + 1]]
-                            for k in idx])
-            if counts.sum() else np.zeros((0, 3))
-        )
+        # each kept constraint's candidate rows, gathered at once (no loop over constraints)
+        rows = np.repeat(self.cand_indptr[idx] - indptr[:-1], counts) + np.arange(indptr[-1])
+        cand = self.cand_normals[rows].reshape(-1, 3)
         out = {f.name: getattr(self, f.name)[idx] for f in fields(self)
                if f.name not in ("cand_indptr", "cand_normals")}
         return ContactSet(**out, cand_indptr=indptr, cand_normals=cand)
