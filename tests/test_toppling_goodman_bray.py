@@ -177,6 +177,34 @@ def test_strength_reduction_brackets_the_limit_equilibrium_angle(built) -> None:
     assert below.failed, below
 
 
+@pytest.mark.slow
+@pytest.mark.xfail(strict=True, reason=(
+    "engine: with a stiff penalty the open-close switch cap keeps contacts that chatter "
+    "between locked and sliding in whichever mode they reached, and the columns fail at "
+    "40° (6° above limit equilibrium; 7.8 m/s by 3 s, status completed); raising the cap "
+    "to 4 or 20, or holding capped contacts at their friction limit (branch `cap`), keeps "
+    "them standing"))
+def test_a_stiff_penalty_does_not_weaken_the_slope(built) -> None:
+    """Settled at φ 60° for 1 s with a penalty of 2e14 N/m (20× the scene's own at its Δt),
+    then weakened to 40° (6° above the limit-equilibrium angle) for 2 s: no column keeps
+    moving. The penalty is a numerical choice; it may not decide whether a slope fails."""
+    base = dataclasses.replace(built.model, controls=dataclasses.replace(
+        built.model.controls, penalty=2e14, record_contacts=False, record_interval=100))
+
+    def at(phi: float, duration: float):
+        return dataclasses.replace(
+            base, joint_materials=[dataclasses.replace(j, friction_angle_rad=np.radians(phi))
+                                   for j in base.joint_materials],
+            controls=dataclasses.replace(base.controls, duration=duration))
+
+    settled = run(at(60.0, 1.0))
+    assert settled.status == STATUS_COMPLETED, settled.message
+    weakened = run(at(40.0, 3.0), resume_from=settled.state)
+    assert weakened.status == STATUS_COMPLETED, weakened.message
+    speed = np.linalg.norm(weakened.state.velocity[:, :3], axis=1).max()
+    assert speed < 1e-3, speed
+
+
 def _rotation_vector(r: np.ndarray) -> np.ndarray:
     """Rotation vector (rad) of a small rotation matrix: its skew part's axial vector."""
     return 0.5 * np.array([r[2, 1] - r[1, 2], r[0, 2] - r[2, 0], r[1, 0] - r[0, 1]])
