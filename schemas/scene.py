@@ -699,7 +699,11 @@ class SweepParameterSpec(_Model):
     quantity: Literal[
         "friction_angle", "cohesion", "joint_orientation", "water_level", "kh",
         "bolt_pretension", "bolt_capacity", "penalty", "time_step"] = Field(
-        description="what varies (default: the parameter's name)")
+        description="what varies (default: the parameter's name): friction_angle "
+                    "(degrees), cohesion (Pa), joint_orientation (Fisher scatter of a "
+                    "joint's dip and dip direction, degrees), water_level (m, height of the "
+                    "phreatic surface's point), kh (fraction of g), bolt_pretension or "
+                    "bolt_capacity (N), penalty (N/m), time_step (s)")
     distribution: Literal["normal", "uniform", "lognormal", "values", "fisher"]
     mean: float | None = Field(None, description="normal or lognormal: the mean (in the "
                                                  "quantity's unit)")
