@@ -21,13 +21,19 @@ from scipy import optimize, stats
 
 from engine.kinematics import normal, trend_plunge
 
-__all__ = ["Distribution", "fisher_angles", "fisher_fit", "fisher_orientations",
-           "plane_positions"]
+__all__ = ["Distribution", "fisher_angles", "fisher_angles_of", "fisher_fit",
+           "fisher_orientations", "plane_positions", "scatter_about"]
 
 
 def fisher_angles(kappa: float, n: int, rng: np.random.Generator) -> np.ndarray:
     """`n` angles (radians) from the mean direction of a Fisher distribution of `kappa`."""
-    u = rng.random(n)
+    return fisher_angles_of(kappa, rng.random(n))
+
+
+def fisher_angles_of(kappa: float, u: Any) -> np.ndarray:
+    """The angles (radians) from the mean direction of a Fisher distribution of `kappa`
+    whose CDF is the uniforms `u` (the inverse CDF, so a caller may choose its draws)."""
+    u = np.asarray(u, float)
     if kappa <= 0:
         return np.arccos(1.0 - 2.0 * u)  # uniform on the sphere
     cos_t = 1.0 + np.log(u + (1.0 - u) * math.exp(-2.0 * kappa)) / kappa
@@ -42,14 +48,12 @@ def _basis(n: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return e1, np.cross(n, e1)
 
 
-def fisher_orientations(dip: float, dip_direction: float, kappa: float, n: int,
-                        seed: int | np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
-    """`n` (dips, dip directions) in degrees whose normals scatter about the set's mean
-    normal by Fisher(κ); reproducible from `seed`."""
-    rng = np.random.default_rng(seed)
+def scatter_about(dip: float, dip_direction: float, theta: Any,
+                  psi: Any) -> tuple[np.ndarray, np.ndarray]:
+    """(dips, dip directions) in degrees of the planes whose normals lie `theta` radians
+    from the plane's normal, at azimuths `psi` radians about it."""
+    theta, psi = np.atleast_1d(np.asarray(theta, float)), np.atleast_1d(np.asarray(psi, float))
     mean = normal(dip, dip_direction)
-    theta = fisher_angles(kappa, n, rng)
-    psi = rng.random(n) * 2.0 * math.pi
     e1, e2 = _basis(mean)
     v = (np.cos(theta)[:, None] * mean + np.sin(theta)[:, None]
          * (np.cos(psi)[:, None] * e1 + np.sin(psi)[:, None] * e2))
@@ -57,6 +61,16 @@ def fisher_orientations(dip: float, dip_direction: float, kappa: float, n: int,
     dips = np.degrees(np.arccos(np.clip(v[:, 2], -1.0, 1.0)))
     dds = np.degrees(np.arctan2(v[:, 0], v[:, 1])) % 360.0
     return dips, dds
+
+
+def fisher_orientations(dip: float, dip_direction: float, kappa: float, n: int,
+                        seed: int | np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
+    """`n` (dips, dip directions) in degrees whose normals scatter about the set's mean
+    normal by Fisher(κ); reproducible from `seed`."""
+    rng = np.random.default_rng(seed)
+    theta = fisher_angles(kappa, n, rng)
+    psi = rng.random(n) * 2.0 * math.pi
+    return scatter_about(dip, dip_direction, theta, psi)
 
 
 def fisher_fit(dips: Any, dip_directions: Any) -> dict[str, float]:

@@ -12,6 +12,7 @@ sensitivity of F to each sampled parameter (Spearman rank correlation).
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -24,10 +25,10 @@ __all__ = ["WedgeGeometry", "aggregate", "truncated_normal", "wedge_factor_of_sa
            "wedge_geometry", "wilson_interval"]
 
 
-def truncated_normal(mean: float, sd: float, n: int, seed: int, lo: float = 0.0,
-                     hi: float = 90.0) -> np.ndarray:
+def truncated_normal(mean: float, sd: float, n: int, seed: int | Sequence[int],
+                     lo: float = 0.0, hi: float = 90.0) -> np.ndarray:
     """`n` samples of Normal(mean, sd) truncated to [lo, hi) (friction angles stay valid),
-    from `seed`; sample k does not depend on n."""
+    from `seed` (an int, or ints for numpy's SeedSequence); sample k does not depend on n."""
     rng = np.random.default_rng(seed)
     a, b = (lo - mean) / sd, (hi - mean) / sd
     u = rng.random(n)  # one uniform per realisation, then the inverse CDF

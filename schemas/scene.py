@@ -640,22 +640,189 @@ class NormalSpec(_Model):
     sd: Positive
 
 
+#: what a sweep may vary: (lowest, highest, unit) of each quantity; a normal or lognormal
+#: draw is truncated to these bounds (friction angle: [0°, 90°), the highest excluded)
+SWEEP_QUANTITIES: dict[str, tuple[float, float, str]] = {
+    "friction_angle": (0.0, 90.0, "degrees"),
+    "cohesion": (0.0, math.inf, "Pa"),
+    "joint_orientation": (0.0, math.inf, "degrees"),
+    "water_level": (-math.inf, math.inf, "m"),
+    "kh": (0.0, 5.0, ""),
+    "bolt_pretension": (0.0, math.inf, "N"),
+    "bolt_capacity": (0.0, math.inf, "N"),
+    "penalty": (0.0, math.inf, "N/m"),
+    "time_step": (0.0, math.inf, "s"),
+}
+
+
+def sweep_truncation(quantity: str, low: float | None = None,
+                     high: float | None = None) -> tuple[float, float]:
+    """The range a normal or lognormal draw of `quantity` is truncated to: the quantity's
+    range, narrowed by `low` / `high` when given."""
+    lo, hi, _ = SWEEP_QUANTITIES[quantity]
+    return (lo if low is None else max(lo, low), hi if high is None else min(hi, high))
+
+
+#: quantities that must stay strictly above their lowest bound
+_SWEEP_POSITIVE = ("bolt_capacity", "penalty", "time_step")
+#: the fields each distribution takes (besides the targets)
+_SWEEP_FIELDS = {"normal": ("mean", "sd"), "uniform": ("low", "high"),
+                 "lognormal": ("mean", "sd"), "values": ("values",), "fisher": ("kappa",)}
+#: the target each quantity may name
+_SWEEP_TARGETS = {"friction_angle": "joint_material", "cohesion": "joint_material",
+                  "joint_orientation": "joint", "bolt_pretension": "bolt",
+                  "bolt_capacity": "bolt"}
+#: the quantities eq. 51 (sweep mode `analytic`) takes into account
+ANALYTIC_QUANTITIES = ("friction_angle", "joint_orientation")
+
+
+class SweepParameterSpec(_Model):
+    """One varied parameter of a sweep: what it is (`quantity`, by default the parameter's
+    name) and how its value is chosen per realisation (`distribution`).
+
+    Quantities: `friction_angle` (degrees) and `cohesion` (Pa) of every weakened joint
+    material (those of `analysis.factor_of_safety.joint_materials`, default all) or of
+    `joint_material`; `joint_orientation` of the joint or joint set `joint` (Fisher
+    dispersion about its dip / dip direction, concentration `kappa`; the blocks are cut
+    again); `water_level` (m, height of the phreatic surface's point); `kh` (the seismic
+    coefficient); `bolt_pretension` and `bolt_capacity` (N) of every bolt or of `bolt` (a
+    bolt's name or a bolt pattern's name_prefix); `penalty` (N/m) and `time_step` (s) of
+    the analysis, for convergence studies.
+
+    Distributions: `normal` (mean, sd; truncated to [low, high] when given and always to
+    the quantity's range), `uniform` (low, high), `lognormal` (mean and sd of the value
+    itself), `fisher` (kappa; joint_orientation only) or `values`: a fixed list (a study;
+    the `values` parameters of a sweep form a grid, the first listed varying fastest, and
+    realisation k takes the k-th combination, cycling).
+    """
+
+    quantity: Literal[
+        "friction_angle", "cohesion", "joint_orientation", "water_level", "kh",
+        "bolt_pretension", "bolt_capacity", "penalty", "time_step"] = Field(
+        description="what varies (default: the parameter's name): friction_angle "
+                    "(degrees), cohesion (Pa), joint_orientation (Fisher scatter of a "
+                    "joint's dip and dip direction, degrees), water_level (m, height of the "
+                    "phreatic surface's point), kh (fraction of g), bolt_pretension or "
+                    "bolt_capacity (N), penalty (N/m), time_step (s)")
+    distribution: Literal["normal", "uniform", "lognormal", "values", "fisher"]
+    mean: float | None = Field(None, description="normal or lognormal: the mean (in the "
+                                                 "quantity's unit)")
+    sd: Positive | None = Field(None, description="normal or lognormal: the standard "
+                                                  "deviation (in the quantity's unit)")
+    low: float | None = Field(None, description="uniform: the lowest value; normal: "
+                                                "truncated below it (optional)")
+    high: float | None = Field(None, description="uniform: the highest value; normal: "
+                                                 "truncated above it (optional)")
+    values: Annotated[list[float], Field(min_length=1, max_length=10_000)] | None = Field(
+        None, description="values: the values, in the quantity's unit")
+    kappa: Positive | None = Field(None, description="fisher: Fisher's concentration κ "
+                                                     "(larger: less scatter)")
+    joint_material: Name | None = Field(None, description="friction_angle / cohesion: only "
+                                                          "this joint material")
+    joint: Name | None = Field(None, description="joint_orientation: the joint or joint set "
+                                                 "(by name) whose orientation varies")
+    bolt: Name | None = Field(None, description="bolt_*: only this bolt (its name) or bolt "
+                                                "pattern (its name_prefix)")
+
+    @model_validator(mode="after")
+    def _consistent(self) -> SweepParameterSpec:
+        q, d = self.quantity, self.distribution
+        lo, hi, unit = SWEEP_QUANTITIES[q]
+        if (d == "fisher") != (q == "joint_orientation"):
+            raise ValueError("joint_orientation takes the distribution 'fisher' (kappa), "
+                             f"and only it does (got {q} with '{d}')")
+        for f in ("mean", "sd", "low", "high", "values", "kappa"):
+            wanted = f in _SWEEP_FIELDS[d]
+            if wanted and getattr(self, f) is None:
+                raise ValueError(f"a {d} distribution needs '{f}'")
+            if not wanted and getattr(self, f) is not None \
+                    and not (d == "normal" and f in ("low", "high")):
+                raise ValueError(f"a {d} distribution takes "
+                                 f"{' and '.join(_SWEEP_FIELDS[d])}, not '{f}'")
+        for f in ("joint_material", "joint", "bolt"):
+            if getattr(self, f) is not None and _SWEEP_TARGETS.get(q) != f:
+                raise ValueError(f"'{f}' does not apply to {q}")
+        if q == "joint_orientation" and self.joint is None:
+            raise ValueError("joint_orientation needs 'joint': the name of a joint or set")
+        suffix = f" {unit}" if unit else ""
+
+        def inside(v: float, what: str) -> None:
+            top = v >= hi if q == "friction_angle" else v > hi
+            if v < lo or top or (q in _SWEEP_POSITIVE and v <= lo):
+                raise ValueError(f"{what} {fmt_num(v)}{suffix} is outside the range of {q} "
+                                 f"({fmt_num(lo)} to {fmt_num(hi)}{suffix})")
+
+        if d == "uniform":
+            if not self.high > self.low:
+                raise ValueError(f"high ({fmt_num(self.high)}) must exceed low "
+                                 f"({fmt_num(self.low)})")
+            inside(self.low, "low")
+            if not (q == "friction_angle" and self.high == hi):  # drawn below high
+                inside(self.high, "high")
+        if d == "values":
+            for v in self.values:
+                inside(v, "value")
+        if d == "normal":
+            a, b = sweep_truncation(q, self.low, self.high)
+            if not b > a:
+                raise ValueError(f"the truncation [{fmt_num(a)}, {fmt_num(b)}]{suffix} is "
+                                 "empty")
+        if d == "lognormal":
+            if lo < 0:
+                raise ValueError(f"{q} may be negative: give it a normal or uniform "
+                                 "distribution, not lognormal")
+            if not (self.mean is not None and self.mean > 0):
+                raise ValueError("a lognormal distribution needs a positive mean")
+        return self
+
+
+
+def _parameter_names(data: Any) -> Any:
+    """A parameter's `quantity` defaults to its name in `parameters`."""
+    if isinstance(data, dict) and isinstance(data.get("parameters"), dict):
+        data = dict(data, parameters={
+            name: ({"quantity": name} | spec if isinstance(spec, dict) and "quantity" not in spec
+                   else spec)
+            for name, spec in data["parameters"].items()})
+    return data
+
+
 class MonteCarloSpec(_Model):
-    """A Monte Carlo sweep (process `sweep`, `polydda sweep`): `n` realisations from `seed`
-    of the joints' friction angle (one value per realisation, truncated to [0°, 90°)), each
-    evaluated by the engine's strength reduction (`dda`) or eq. 51 for a two-joint wedge
-    (`analytic`)."""
+    """A sweep or Monte Carlo analysis (process `sweep`, `polydda sweep`): `n` realisations
+    from `seed` of the scene's `parameters` (each from its own random stream, so realisation
+    k is the same whatever n and whatever other parameters are added), each evaluated by
+    the engine's strength reduction (`dda`) or eq. 51 for a two-joint wedge (`analytic`:
+    friction_angle and joint_orientation only). `friction_angle: {mean, sd}` is the short
+    form of the parameter `friction_angle` normal on every weakened joint material."""
 
     n: Annotated[int, Field(ge=1, le=10_000)] = Field(200, description="realisations")
     seed: Annotated[int, Field(ge=0)] = Field(0, description="random seed")
-    friction_angle: NormalSpec = Field(description="degrees")
+    friction_angle: NormalSpec | None = Field(
+        None, description="degrees: φ ~ Normal(mean, sd) truncated to [0°, 90°) on every "
+                          "weakened joint material (short form of a parameter)")
+    parameters: dict[Name, SweepParameterSpec] = Field(
+        default_factory=dict,
+        description="the varied parameters by name (their quantity defaults to the name), "
+                    "e.g. {\"friction_angle\": {\"distribution\": \"normal\", \"mean\": 40, "
+                    "\"sd\": 5}, \"kh\": {\"distribution\": \"values\", \"values\": [0, 0.1]}}")
     mode: Literal["dda", "analytic"] = "dda"
     realisations: list[Annotated[int, Field(ge=0)]] | None = Field(
         None, description="evaluate only these realisations (0 to n - 1; a share of the "
                           "sweep for one job); default all")
 
+    @model_validator(mode="before")
+    @classmethod
+    def _names(cls, data: Any) -> Any:
+        return _parameter_names(data)
+
     @model_validator(mode="after")
     def _indices(self) -> MonteCarloSpec:
+        if self.friction_angle is None and not self.parameters:
+            raise ValueError("give 'parameters' (or the short form 'friction_angle': "
+                             "{\"mean\", \"sd\"})")
+        if self.friction_angle is not None and "friction_angle" in self.parameters:
+            raise ValueError("'friction_angle' is given twice: as the short form and in "
+                             "'parameters'")
         if self.realisations is not None:
             bad = [k for k in self.realisations if k >= self.n]
             if bad:
@@ -710,8 +877,8 @@ class Scene(_Model):
     slope_face: SlopeFaceSpec | None = Field(
         None, description="the slope face for kinematic screening (not used by runs)")
     sweep: MonteCarloSpec | None = Field(
-        None, description="a Monte Carlo sweep of the joints' friction angle (process "
-                          "'sweep'; not used by runs)")
+        None, description="a sweep or Monte Carlo analysis of the scene's parameters "
+                          "(process 'sweep'; not used by runs)")
 
     @model_validator(mode="after")
     def _defaults(self) -> Scene:
@@ -900,6 +1067,8 @@ def scene_problems(scene: Scene) -> list[dict[str, str]]:
     if scene.water is not None:
         for k, jp in enumerate(scene.water.joint_pressures):
             joint_material(f"water.joint_pressures[{k}].joint_material", jp.joint_material)
+    if scene.sweep is not None:
+        _sweep_problems(scene, p, joint_material)
     if scene.analysis.type == "critical_seismic_coefficient" and scene.seismic is None:
         p.add("seismic", "the critical_seismic_coefficient analysis needs 'seismic' with the "
               "azimuth the horizontal force points to (and kv, if any)")
@@ -930,6 +1099,32 @@ def scene_problems(scene: Scene) -> list[dict[str, str]]:
               f"duration / time_step = {steps:.3g} steps; the limit is {Limits.max_steps:,} "
               "(shorten the duration or enlarge the time step)")
     return p.items
+
+
+def _sweep_problems(scene: Scene, p: Problems, joint_material: Any) -> None:
+    """What a sweep's parameters name must exist in the scene, and eq. 51 (mode
+    `analytic`) must cover them."""
+    joints = [scene.joint_name(k) for k in range(len(scene.joints))]
+    bolts = [b.name or f"bolt{k + 1}" for k, b in enumerate(scene.bolts)]
+    prefixes = [bp.name_prefix for bp in scene.bolt_patterns]
+    for name, par in scene.sweep.parameters.items():
+        loc, q = f"sweep.parameters.{name}", par.quantity
+        joint_material(f"{loc}.joint_material", par.joint_material)
+        if par.joint is not None and par.joint not in joints:
+            p.add(f"{loc}.joint", f"unknown joint '{par.joint}' (known: {_known(joints)})")
+        if q.startswith("bolt_") and not bolts + prefixes:
+            p.add(loc, f"{q} varies the bolts, but the scene has none")
+        elif par.bolt is not None and par.bolt not in bolts + prefixes:
+            p.add(f"{loc}.bolt", f"unknown bolt '{par.bolt}' (known: "
+                  f"{_known(bolts + prefixes)})")
+        if q == "water_level" and (scene.water is None or scene.water.phreatic_surface is None):
+            p.add(loc, "water_level moves the phreatic surface: give 'water': "
+                  "{\"phreatic_surface\": ...}")
+        if q == "kh" and scene.seismic is None:
+            p.add(loc, "kh needs 'seismic' with the azimuth the horizontal force points to")
+        if scene.sweep.mode == "analytic" and q not in ANALYTIC_QUANTITIES:
+            p.add(loc, f"eq. 51 (mode 'analytic') covers only "
+                  f"{' and '.join(ANALYTIC_QUANTITIES)}, not {q}: use mode 'dda'")
 
 
 def _raw_names(items: list[Any]) -> list[dict[str, Any]]:

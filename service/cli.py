@@ -25,7 +25,7 @@ from engine.results import ResultWriter
 from engine.simulation import STATUS_COMPLETED, Progress, run
 from schemas.convert import BuildResult, build_model
 from schemas.errors import SceneError
-from schemas.scene import SCHEMA_VERSION, load_scene, scene_json_schema
+from schemas.scene import SCHEMA_VERSION, scene_json_schema
 from service.documents import (
     SEARCH_DISTANCE_RATIO,
     blocks_document,
@@ -351,33 +351,51 @@ def cmd_kinematics(args: argparse.Namespace) -> int:
     return EXIT_OK
 
 
+def _sweep_options(args: argparse.Namespace,
+                   scene: dict[str, Any]) -> dict[str, Any] | None:
+    """The scene's `sweep` with the command line's options over it (None: no parameter)."""
+    given = scene.get("sweep")
+    section = {k: v for k, v in (given if isinstance(given, dict) else {}).items()
+               if k != "realisations"}
+    for key in ("n", "seed", "mode"):
+        if getattr(args, key) is not None:
+            section[key] = getattr(args, key)
+    if args.friction_mean is not None or args.friction_sd is not None:
+        short = dict(section.get("friction_angle") or {})
+        short |= {k: v for k, v in (("mean", args.friction_mean), ("sd", args.friction_sd))
+                  if v is not None}
+        section["friction_angle"] = short
+    for text in args.parameter or ():
+        name, sep, spec = text.partition("=")
+        try:
+            value = json.loads(spec) if sep else None
+        except json.JSONDecodeError:
+            value = None
+        if not name or not isinstance(value, dict):
+            raise SceneError([{"loc": "--parameter", "msg": f"expected NAME={{JSON object}}, "
+                               f"got {text!r}"}])
+        section.setdefault("parameters", {})[name] = value
+    short = section.get("friction_angle")
+    if isinstance(short, dict) and not {"mean", "sd"} <= set(short):
+        return None
+    if not short and not section.get("parameters"):
+        return None
+    return section
+
+
 def cmd_sweep(args: argparse.Namespace) -> int:
-    """Monte Carlo sweep: N realisations of the joints' friction angle from a seed, a factor
-    of safety each (engine strength reduction or eq. 51), probability of failure."""
-    from service.sweep import SweepSpec, run_sweep
+    """Sweep or Monte Carlo analysis: N realisations of the scene's parameters from a seed,
+    a factor of safety each (engine strength reduction or eq. 51), probability of failure."""
+    from service.sweep import run_sweep, spec_of_scene
 
     scene = json.loads(Path(args.scene).read_text(encoding="utf-8"))
     build_model(scene)  # the scene must be valid before any realisation
-    given = load_scene(scene).sweep
-    options = {"n": args.n, "seed": args.seed, "mode": args.mode,
-               "friction_mean": args.friction_mean, "friction_sd": args.friction_sd}
-    from_scene = {} if given is None else {
-        "n": given.n, "seed": given.seed, "mode": given.mode,
-        "friction_mean": given.friction_angle.mean, "friction_sd": given.friction_angle.sd}
-    values = {k: v if v is not None else from_scene.get(k) for k, v in options.items()}
-    if values["friction_mean"] is None or values["friction_sd"] is None:
-        print("polydda sweep: give --friction-mean and --friction-sd (or the scene's "
-              "sweep.friction_angle)", file=sys.stderr)
+    section = _sweep_options(args, scene)
+    if section is None:
+        print("polydda sweep: give --friction-mean and --friction-sd, or --parameter, or the "
+              "scene's sweep.parameters (or sweep.friction_angle)", file=sys.stderr)
         return EXIT_SCENE
-    try:
-        defaults = {"n": 200, "seed": 0, "mode": "dda"}
-        values = {k: defaults[k] if v is None and k in defaults else v
-                  for k, v in values.items()}
-        spec = SweepSpec(values["n"], values["seed"], values["friction_mean"],
-                         values["friction_sd"], values["mode"])
-    except ValueError as exc:
-        print(f"polydda sweep: {exc}", file=sys.stderr)
-        return EXIT_SCENE
+    spec = spec_of_scene(dict(scene, sweep=section))  # SceneError: exit 2
 
     def note(done: int, n: int, now: int) -> None:
         if not args.quiet:
@@ -403,9 +421,7 @@ def _sweep_on_server(args: argparse.Namespace, scene: dict[str, Any], spec: Any)
 
     from service.client import ServiceError, Unreachable, sweep_jobs
 
-    scene = dict(scene, sweep={"n": spec.n, "seed": spec.seed, "mode": spec.mode,
-                               "friction_angle": {"mean": spec.friction_mean,
-                                                  "sd": spec.friction_sd}})
+    scene = dict(scene, sweep=spec.scene_sweep())
     headers = {"X-API-Key": args.api_key} if args.api_key else {}
     last = [-1]
 
@@ -601,10 +617,15 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--plot", metavar="OUT.png", help="write the stereonet to this PNG file")
     p.set_defaults(func=cmd_kinematics)
 
-    p = sub.add_parser("sweep", help="Monte Carlo sweep: probability of failure",
-                       description="N realisations of the joints' friction angle (normal, "
-                                   "from a seed); a factor of safety each; re-running with "
-                                   "the same --out skips the realisations already done")
+    p = sub.add_parser(
+        "sweep", help="sweep or Monte Carlo analysis: probability of failure",
+        description="N realisations of the scene's parameters (the scene's sweep.parameters, "
+                    "or --parameter, or the joints' friction angle by --friction-mean / "
+                    "--friction-sd): each a distribution (normal, uniform, lognormal; Fisher "
+                    "for a joint orientation) drawn from the seed, or a list of values (a "
+                    "study); a factor of safety each, the probability of failure, FS "
+                    "histogram and CDF and the sensitivity of FS to each parameter; "
+                    "re-running with the same --out skips the realisations already done")
     p.add_argument("scene", help="scene JSON file")
     p.add_argument("--n", type=int, help="realisations (default: the scene's sweep.n, or 200)")
     p.add_argument("--seed", type=int, help="random seed (default: sweep.seed, or 0)")
@@ -612,9 +633,13 @@ def build_parser() -> argparse.ArgumentParser:
                    help="mean friction angle (default: sweep.friction_angle.mean)")
     p.add_argument("--friction-sd", type=float, metavar="DEG",
                    help="its standard deviation (default: sweep.friction_angle.sd)")
+    p.add_argument("--parameter", action="append", metavar="NAME=JSON",
+                   help="a parameter of the sweep, as in the scene's sweep.parameters, e.g. "
+                        "'cohesion={\"distribution\": \"uniform\", \"low\": 0, \"high\": "
+                        "20000}' (Pa; angles in degrees); repeat for several")
     p.add_argument("--mode", choices=("dda", "analytic"),
                    help="dda: the engine's strength reduction per realisation; analytic: "
-                        "eq. 51 (two-joint wedge) only")
+                        "eq. 51 (two-joint wedge; friction and joint orientation only)")
     p.add_argument("--out", required=True, metavar="DIR", help="folder of the sweep")
     p.add_argument("--workers", type=int, default=1, help="processes (default 1)")
     p.add_argument("--server", metavar="URL",

@@ -285,9 +285,15 @@ def _sweep_section(part: dict[str, Any] | None) -> str:
     doc, spec = part["doc"], part["doc"].get("spec") or {}
     out = ["<h2 id='sweep'>Monte Carlo sweep</h2>",
            f"<p>{doc.get('done', 0)} of {spec.get('n', '?')} realisations done (seed "
-           f"{spec.get('seed', '?')}); friction angle φ ~ Normal({spec.get('friction_mean')}°, "
-           f"{spec.get('friction_sd')}°) on every joint; factor of safety by "
+           f"{spec.get('seed', '?')}); factor of safety by "
            f"{escape(str(spec.get('mode', '?')))}.</p>"]
+    params = doc.get("parameters") or {}
+    if params:
+        out.append(_table([[name, ", ".join(
+            f"{k} {v}" for k, v in p.items() if k not in ("values", "truncated_to"))
+            + (f", {len(p['values'])} values" if "values" in p else "")]
+            for name, p in params.items()], ["parameter", "distribution"]))
+    names = sorted({n for a in part["aggregates"].values() for n in a.get("sensitivity") or {}})
     rows = []
     for label, a in part["aggregates"].items():
         pof, ci = a.get("probability_of_failure"), a.get("pof_interval_95") or [None, None]
@@ -297,10 +303,10 @@ def _sweep_section(part: dict[str, Any] | None) -> str:
                      "–" if pof is None else f"{ci[0]:.3g} – {ci[1]:.3g}",
                      *(_num(a[k]) if k in a else "–" for k in ("mean", "sd", "min", "max")),
                      *(_num(pct[q]) if q in pct else "–" for q in ("5", "50", "95")),
-                     _num((a.get("sensitivity") or {}).get("friction_angle", "–"))])
+                     *(_num((a.get("sensitivity") or {}).get(n, "–")) for n in names)])
     out.append(_table(rows, ["method", "n", "failures (FS < 1)", "excluded", "PoF",
                              "PoF 95 % (Wilson)", "mean FS", "sd", "min", "max", "P5", "P50",
-                             "P95", "Spearman ρ(φ, FS)"]))
+                             "P95", *(f"Spearman ρ({n}, FS)" for n in names)]))
     if part.get("src"):
         out.append(_figure(part["src"], "Factor of safety over the realisations: histogram "
                            "and empirical CDF (FS = 1 dashed)", "sweep-figure"))
