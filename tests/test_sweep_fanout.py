@@ -70,6 +70,8 @@ def test_parent_fans_out_in_shares_and_merges_them(tmp_path: Path) -> None:
         assert [(r["index"], r["factor_of_safety"]) for r in doc["realisations"]] == \
             [(r["index"], r["factor_of_safety"]) for r in local["realisations"]]
         assert [j["realisations"] for j in doc["jobs"]] == [17, 17, 16]
+        assert c.get(url + "/report").status_code == 200
+        assert c.get(url + "/results/sweep.json").json()["analytic"] == doc["analytic"]
         # one job of the whole sweep gives the same numbers
         one = c.post("/jobs", params={"process": "sweep"}, json=scene)
         assert links(one.json(), "item") == []
