@@ -2,10 +2,10 @@
 
 Each run gets a fresh Redis, data directory and `polydda serve` (RQ backend) with K
 `polydda worker`s, started and registered before the clock starts; the sweep goes out as K
-shares (`service.client.sweep_jobs`, what `polydda sweep --server URL --jobs K` runs) and
-the clock stops when the merged document is written. The embedded backend (2 job
-processes) runs the same sweep in 2 shares. Every run must give the same numbers (all
-but each realisation's own wall time).
+shares: one parent job of K children (`service.client.sweep_parent`, what `polydda sweep
+--server URL --jobs K` runs), and the clock stops when the merged document is written. The
+embedded backend (2 job processes) runs the same sweep in 2 shares. Every run must give
+the same numbers (all but each realisation's own wall time).
 Run: `python -m benchmarks.bench_sweep_rq [--mode analytic|dda] [--n N]` (needs
 redis-server; the helpers that start the processes are the service tests' own).
 """
@@ -22,7 +22,7 @@ from typing import Any
 
 import httpx
 
-from service.client import sweep_jobs
+from service.client import sweep_parent
 from tests.service_helpers import RedisServer, Server, wait_until, worker_command
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -53,7 +53,7 @@ def on_rq(scene: dict[str, Any], k: int, tmp: Path) -> tuple[float, dict[str, An
                     httpx.Client(base_url=srv.url, timeout=60) as c:
                 wait_until(lambda: c.get("/health").json()["workers"] == k, 60, "workers")
                 t0 = time.perf_counter()
-                doc = sweep_jobs(c, scene, k, data.parent / "out", poll=0.2)
+                doc = sweep_parent(c, scene, k, data.parent / "out", poll=0.2)
                 return time.perf_counter() - t0, doc
         finally:
             for w in workers:
@@ -72,7 +72,7 @@ def on_embedded(scene: dict[str, Any], k: int, tmp: Path) -> tuple[float, dict[s
     with Server(data, POLYDDA_MAX_WORKERS=str(k)) as srv, \
             httpx.Client(base_url=srv.url, timeout=60) as c:
         t0 = time.perf_counter()
-        doc = sweep_jobs(c, scene, k, data.parent / "out", poll=0.2)
+        doc = sweep_parent(c, scene, k, data.parent / "out", poll=0.2)
         return time.perf_counter() - t0, doc
 
 

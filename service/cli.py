@@ -416,10 +416,11 @@ def cmd_sweep(args: argparse.Namespace) -> int:
 
 
 def _sweep_on_server(args: argparse.Namespace, scene: dict[str, Any], spec: Any) -> int:
-    """`polydda sweep --server URL --jobs K`: the sweep as K jobs of the service, merged."""
+    """`polydda sweep --server URL --jobs K`: the sweep as one job of the service fanned
+    out in K child jobs (the server merges them)."""
     import httpx
 
-    from service.client import ServiceError, Unreachable, sweep_jobs
+    from service.client import ServiceError, Unreachable, sweep_parent
 
     scene = dict(scene, sweep=spec.scene_sweep())
     headers = {"X-API-Key": args.api_key} if args.api_key else {}
@@ -434,7 +435,7 @@ def _sweep_on_server(args: argparse.Namespace, scene: dict[str, Any], spec: Any)
     try:
         with httpx.Client(base_url=args.server.rstrip("/"), headers=headers,
                           timeout=60) as client:
-            doc = sweep_jobs(client, scene, args.jobs, Path(args.out), on_progress=note)
+            doc = sweep_parent(client, scene, args.jobs, Path(args.out), on_progress=note)
     except httpx.TransportError as exc:
         print(f"polydda sweep: {Unreachable(str(exc))}", file=sys.stderr)
         return EXIT_IO
@@ -643,10 +644,11 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--out", required=True, metavar="DIR", help="folder of the sweep")
     p.add_argument("--workers", type=int, default=1, help="processes (default 1)")
     p.add_argument("--server", metavar="URL",
-                   help="run the realisations as --jobs jobs of this PolyDDA service "
-                        "(embedded workers or `polydda worker`s) and merge them")
+                   help="run the sweep as one job of this PolyDDA service fanned out in "
+                        "--jobs child jobs (embedded workers or `polydda worker`s); the "
+                        "server merges them")
     p.add_argument("--jobs", type=int, default=2, metavar="K",
-                   help="jobs of the sweep on --server (default 2)")
+                   help="child jobs (shares) of the sweep on --server (default 2)")
     p.add_argument("--api-key", help="API key for --server, if it requires one")
     p.add_argument("--limit", type=int, metavar="K",
                    help="evaluate at most K new realisations, then aggregate those done")

@@ -146,6 +146,67 @@ def print_status(doc: dict[str, Any]) -> None:
     print(f"{doc['jobID']} {doc['status']} {doc['progress']}%{extra}{msg}", file=sys.stderr)
 
 
+def sweep_parent(client: httpx.Client, scene: dict[str, Any], shares: int, out: Path, *,
+                 retries: int = 5, poll: float = 0.5,
+                 on_progress: Callable[[int, int, list[dict[str, Any]]], None] | None = None,
+                 ) -> dict[str, Any]:
+    """Run the scene's sweep on the server behind `client` as ONE parent job fanned out in
+    `shares` child jobs (`POST /jobs?process=sweep&shares=K`; at most one share per
+    realisation) and follow it; the server spreads the children over its workers, reports
+    the progress of the whole, resubmits a share whose worker died and merges the results.
+
+    `on_progress(done, n, children's statuses)` after each poll; Ctrl-C cancels the parent
+    (and so every child); `out/jobs.json` remembers the parent, so a re-run follows it
+    again while it runs (or takes its results) instead of submitting a new one. Writes and
+    returns `out/sweep.json` (raises ServiceError when no share left results).
+    """
+    from service.sweep import spec_of_scene
+
+    n = len(spec_of_scene(scene).indices())
+    shares = max(1, min(shares, n))
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    state_path = out / "jobs.json"
+    url = None
+    if state_path.is_file():
+        state = json.loads(state_path.read_text())
+        if state.get("scene") == scene and state.get("shares") == shares:
+            r = client.get(state["url"])
+            if r.status_code == 200 and r.json()["status"] in ("successful", "accepted",
+                                                                "running"):
+                url = state["url"]
+    if url is None:
+        r = _check(post_with_retries(client, "/jobs", json.dumps(scene).encode(),
+                                     {"process": "sweep", "shares": str(shares)}, retries))
+        url = r.headers["Location"]
+        state_path.write_text(json.dumps({"scene": scene, "shares": shares, "url": url}))
+    try:
+        while True:
+            status = _check(client.get(url)).json()
+            if on_progress is not None:
+                children = [_check(client.get(lk["href"])).json()
+                            for lk in status["links"] if lk["rel"] == "item"]
+                on_progress(int(status.get("step") or 0), n, children)
+            if status["status"] in FINAL:
+                break
+            time.sleep(poll)
+    except KeyboardInterrupt:
+        client.delete(url)
+        raise
+    r = client.get(url + "/results")
+    if r.status_code != 200:
+        raise ServiceError({"detail": f"the sweep job {status['status']}: "
+                                      f"{status.get('message') or 'no results'}"})
+    doc = r.json()["sweep"]
+    base = url.rsplit("/", 1)[0]
+    doc["job"] = {"url": url, "status": status["status"], "message": status.get("message")}
+    doc["jobs"] = [{"url": f"{base}/{j['jobID']}", "status": j["status"],
+                    "message": j["message"], "realisations": j["realisations"]}
+                   for j in doc.get("jobs", [])]
+    (out / "sweep.json").write_text(json.dumps(doc, indent=2, allow_nan=False) + "\n")
+    return doc
+
+
 def sweep_jobs(client: httpx.Client, scene: dict[str, Any], shares: int, out: Path, *,
                retries: int = 5, poll: float = 0.5, resubmit: int = 2,
                on_progress: Callable[[int, int, list[dict[str, Any]]], None] | None = None,
@@ -155,16 +216,24 @@ def sweep_jobs(client: httpx.Client, scene: dict[str, Any], shares: int, out: Pa
 
     Progress of the whole is the realisations done over all jobs; Ctrl-C cancels every job;
     a job that failed for a system reason (its worker died) is submitted again up to
-    `resubmit` times, and redoes none of the realisations already done (the server keeps
+    `resubmit` times (:func:`service.sweep.should_resubmit`, as the server does for a
+    parent job's children), and redoes none of the realisations already done (the server keeps
     them by sweep); `out/jobs.json` remembers the jobs, so a re-run keeps those that
     succeeded (or still run) and submits again only the others. Writes and returns
-    `out/sweep.json`.
+    `out/sweep.json`. Kept for scripts that used it: `polydda sweep --server` now submits
+    one parent job (:func:`sweep_parent`).
     """
-    from service.sweep import merge_documents, spec_of_scene
+    from service.sweep import (
+        merge_documents,
+        share_parts,
+        share_scene,
+        should_resubmit,
+        spec_of_scene,
+    )
 
     spec = spec_of_scene(scene)
     indices = spec.indices()
-    parts = [p for p in (indices[k::max(1, shares)] for k in range(max(1, shares))) if p]
+    parts = share_parts(indices, shares)
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     state_path = out / "jobs.json"
@@ -183,8 +252,7 @@ def sweep_jobs(client: httpx.Client, scene: dict[str, Any], shares: int, out: Pa
             if r.status_code == 200 and r.json()["status"] in ("successful", "accepted",
                                                                 "running"):
                 continue
-        child = json.loads(json.dumps(scene))
-        child["sweep"]["realisations"] = part
+        child = share_scene(scene, part)
         r = _check(post_with_retries(client, "/jobs", json.dumps(child).encode(),
                                      {"process": "sweep"}, retries))
         urls[k] = r.headers["Location"]
@@ -195,11 +263,9 @@ def sweep_jobs(client: httpx.Client, scene: dict[str, Any], shares: int, out: Pa
         while True:
             statuses = [_check(client.get(u)).json() for u in urls]
             for k, st in enumerate(statuses):  # a share whose worker died: once more
-                if st["status"] == "failed" and st.get("error_kind") == "system" \
-                        and tries[k] < resubmit + 1:
+                if should_resubmit(st["status"], st.get("error_kind"), tries[k], resubmit):
                     tries[k] += 1
-                    child = json.loads(json.dumps(scene))
-                    child["sweep"]["realisations"] = parts[k]
+                    child = share_scene(scene, parts[k])
                     r = _check(post_with_retries(client, "/jobs", json.dumps(child).encode(),
                                                  {"process": "sweep"}, retries))
                     urls[k] = r.headers["Location"]

@@ -240,7 +240,8 @@ PROCESSES: dict[str, Process] = {p.id: p for p in (
             "probability of failure, FS histogram and CDF and the sensitivity to φ, beside "
             "eq. 51 over the same realisations. Progress counts realisations; a cancelled "
             "job keeps the aggregate of those done. sweep.realisations makes a job one "
-            "share of a sweep (polydda sweep --server URL --jobs K fans a sweep out so); "
+            "share of a sweep; ?shares=K makes the job a parent of K such jobs spread over "
+            "the queue (progress, cancel and merged results of the whole); "
             "realisation records are kept by sweep in the data directory, so a job "
             "resubmitted after its worker died redoes none that were done.",
             ("sweep.json",), "sweep.json", "sweep", None, _sweep, check=_sweep_check),

@@ -497,6 +497,42 @@ def run_sweep(scene: dict[str, Any], spec: SweepSpec, out: Path, workers: int = 
     return doc
 
 
+#: times a share whose job failed for a system reason (its worker died) is submitted again
+RESUBMIT = 1
+
+
+def share_parts(indices: Sequence[int], shares: int) -> list[list[int]]:
+    """The realisations of each of `shares` jobs (every `shares`-th index, so the shares
+    take alike long); empty shares (more shares than indices) are left out."""
+    k = max(1, shares)
+    return [p for p in (list(indices[i::k]) for i in range(k)) if p]
+
+
+def share_scene(scene: Mapping[str, Any], part: Sequence[int]) -> dict[str, Any]:
+    """The scene of the job that evaluates the realisations `part` of the scene's sweep."""
+    child = copy.deepcopy(dict(scene))
+    child["sweep"] = dict(child["sweep"], realisations=list(part))
+    return child
+
+
+def should_resubmit(status: str, error_kind: str | None, tries: int,
+                    resubmit: int = RESUBMIT) -> bool:
+    """Whether a share's job is submitted again: it failed for a system reason (its worker
+    or job process died, the queue was away) and the share ran fewer than 1 + `resubmit`
+    times; it redoes none of the realisations recorded before (they are kept by sweep)."""
+    return status == "failed" and error_kind == "system" and tries < 1 + resubmit
+
+
+def document_so_far(scene: dict[str, Any], shared: Path) -> dict[str, Any]:
+    """The aggregate of the scene's realisations recorded so far in `shared` (the folder
+    of every job's records, by population), whichever job evaluated them."""
+    spec = spec_of_scene(scene)
+    rdir = Path(shared) / _digest(scene, spec)
+    records = [json.loads(p.read_text()) for k in spec.indices()
+               if (p := rdir / f"{k:05d}.json").is_file()]
+    return sweep_document(spec, records)
+
+
 def merge_documents(docs: list[dict[str, Any]]) -> dict[str, Any]:
     """One sweep document from those of jobs that each evaluated a share of the same sweep
     (same population; a realisation in several shares counts once)."""

@@ -122,11 +122,14 @@ def _client(request: Request, settings: SettingsDep,
 ClientDep = Annotated[Client, Depends(_client)]
 
 
-def _job(job_id: str, store: StoreDep, client: ClientDep) -> JobRecord:
+def _job(job_id: str, store: StoreDep, client: ClientDep, backend: BackendDep) -> JobRecord:
+    """The job asked for, as it is now (a parent job refreshed from its children)."""
+    from service.fanout import refresh
+
     job = store.get(job_id)
     if job is None or not client.owns(job):
         raise no_such_job(job_id)
-    return job
+    return refresh(store, backend, job)
 
 
 JobDep = Annotated[JobRecord, Depends(_job)]

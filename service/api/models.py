@@ -70,6 +70,14 @@ def status_doc(job: JobRecord, root: str = "") -> dict[str, Any]:
     if RESULT_FILE in PROCESSES[job.process].artifacts:
         links.append({"href": f"{href}/viewer", "rel": "related", "type": "text/html",
                       "title": "3-D viewer (follows the run)"})
+    if job.parent is not None:
+        links.append({"href": f"{root}/jobs/{job.parent}", "rel": "up",
+                      "type": "application/json",
+                      "title": f"the sweep job this is share {job.share} of"})
+    for k, child in enumerate(job.child_ids):
+        links.append({"href": f"{root}/jobs/{child}", "rel": "item",
+                      "type": "application/json",
+                      "title": f"share {k} of {job.shares}: child job"})
     if job.is_final:
         links += [{"href": f"{href}/results",
                    "rel": "http://www.opengis.net/def/rel/ogc/1.0/results",

@@ -14,7 +14,8 @@ from typing import Any
 
 from service.api.models import FILE_TYPES
 from service.api.problems import Problem
-from service.backends.store import ACTIVE, SUCCESSFUL, JobRecord
+from service.backends import Backend
+from service.backends.store import ACTIVE, SUCCESSFUL, JobRecord, JobStore
 from service.documents import NotRecorded, result_contacts_document
 from service.frames import Frames, RangeError
 from service.frames import frames as make_frames
@@ -93,6 +94,18 @@ def readable_result(job: JobRecord, settings: Settings) -> tuple[Path, bool]:
                           f"job {job.id}'s result.h5 was left unreadable by its killed run "
                           f"and could not be recovered: {exc}") from None
         return copy, True
+
+
+def so_far_document(job: JobRecord, store: JobStore, backend: Backend,
+                    root: str) -> dict[str, Any]:
+    """A running sweep parent's results: the aggregate of the realisations its children
+    recorded so far (`partial`; the merged children's documents once it ends)."""
+    from service.fanout import so_far
+
+    return {"jobID": job.id, "processID": job.process, "status": job.status,
+            "message": job.message, "partial": True, "sweep": so_far(store, backend, job),
+            "links": [{"href": f"{root}/jobs/{job.id}", "rel": "status",
+                       "type": "application/json"}]}
 
 
 def results_document(job: JobRecord, settings: Settings, root: str) -> dict[str, Any]:

@@ -35,6 +35,9 @@ from service.api.models import FILE_TYPES, JobList, Status, StatusInfo, process_
 from service.api.problems import Problem, problem_responses
 from service.backends.store import ACTIVE, JobStore
 from service.documents import contacts_csv
+from service.fanout import MAX_SHARES
+from service.fanout import cancel as cancel_job
+from service.fanout import current as current_job
 from service.frames import encode_binary, to_json
 from service.processes import PROCESS_IDS, PROCESSES, RESULT_FILE, ProcessId
 
@@ -44,6 +47,17 @@ MAX_OFFSET = 2**63 - 1
 MAX_STEP = 2**31 - 1
 
 router = APIRouter(dependencies=[Depends(_client)])
+
+#: `?shares=K`: a sweep fanned out over the queue as a parent job of K child jobs
+Shares = Annotated[int, Query(ge=1, le=MAX_SHARES, description=(
+    "process `sweep` only: fan the sweep out over the job queue in this many shares. The "
+    "job is then a parent that runs nothing itself: it submits one child `sweep` job per "
+    "share (its realisations in `sweep.realisations`; at most as many shares as "
+    "realisations, else 422), links them (`item`; each child links its parent, `up`), "
+    "reports the realisations done over all of them, cancels them all when it is "
+    "cancelled, submits again once a share whose worker died, and its results are the "
+    "children's sweep documents merged (while it runs: the realisations recorded so far)."
+    " 1: a plain job"))]
 
 
 class ProblemFileResponse(FileResponse):
@@ -104,11 +118,12 @@ _SUBMIT_RESPONSES: dict[int | str, dict[str, Any]] = {
              responses=_SUBMIT_RESPONSES, response_model=None, operation_id="executeProcess")
 def execute_process(process_id: str, data: SceneBody, settings: SettingsDep, store: StoreDep,
                     backend: BackendDep, client: ClientDep, root: RootDep,
-                    key: IdempotencyKey = None) -> JSONResponse:
+                    key: IdempotencyKey = None, shares: Shares = 1) -> JSONResponse:
     if process_id not in PROCESSES:
         raise _no_such_process(process_id)
     return submission.submit(process_id, data, settings=settings, store=store,
-                             backend=backend, client=client, key=key, root=root)
+                             backend=backend, client=client, key=key, root=root,
+                             shares=shares)
 
 
 # --------------------------------------------------------------------------- jobs
@@ -120,9 +135,9 @@ def execute_process(process_id: str, data: SceneBody, settings: SettingsDep, sto
              responses=_SUBMIT_RESPONSES, response_model=None, operation_id="createJob")
 def create_job(data: SceneBody, settings: SettingsDep, store: StoreDep, backend: BackendDep,
                client: ClientDep, root: RootDep, process: ProcessId | None = None,
-               key: IdempotencyKey = None) -> JSONResponse:
+               key: IdempotencyKey = None, shares: Shares = 1) -> JSONResponse:
     return submission.submit(process, data, settings=settings, store=store, backend=backend,
-                             client=client, key=key, root=root)
+                             client=client, key=key, root=root, shares=shares)
 
 
 @router.get("/jobs", tags=["jobs"], summary="List your jobs (newest first; admins: all)",
@@ -159,23 +174,25 @@ def get_job(job: JobDep, root: RootDep) -> dict[str, Any]:
 
 
 @router.delete("/jobs/{job_id}", tags=["jobs"], response_model=StatusInfo,
-               summary="Cancel a job (partial results stay) or remove a finished one",
+               summary="Cancel a job (partial results stay) or remove a finished one (a sweep's "
+                       "parent job: with its children)",
                responses={202: {"description": "cancel requested; the job is still stopping",
                                 "model": StatusInfo}, **problem_responses(401, 404)},
                operation_id="dismissJob")
 def dismiss_job(job: JobDep, store: StoreDep, backend: BackendDep, settings: SettingsDep,
                 root: RootDep) -> Any:
     if job.status in ACTIVE:
-        backend.cancel(job.id)
+        cancel_job(store, backend, job)  # a parent: every unfinished child
         deadline = time.monotonic() + settings.cancel_grace + 5.0
-        current = store.get(job.id) or job
+        current = current_job(store, backend, job.id) or job
         while current.status in ACTIVE and time.monotonic() < deadline:
             time.sleep(0.05)
-            current = store.get(job.id) or current
+            current = current_job(store, backend, job.id) or current
         return JSONResponse(status_doc(current, root),
                             status_code=200 if current.is_final else 202)
-    shutil.rmtree(settings.job_dir(job.id), ignore_errors=True)
-    store.delete(job.id)
+    for gone in (job.id, *(c.id for c in store.children(job.id) if c.is_final)):
+        shutil.rmtree(settings.job_dir(gone), ignore_errors=True)
+        store.delete(gone)
     doc = status_doc(job, root)
     doc.update(status="dismissed", message="removed with its results",
                links=[lk for lk in doc["links"] if lk["rel"] == "self"])
@@ -233,9 +250,13 @@ def job_events(job: JobDep, store: StoreDep, root: RootDep) -> StreamingResponse
 
 
 @router.get("/jobs/{job_id}/results", tags=["results"],
-            summary="The job's result document (summary and links to the files)",
+            summary="The job's result document (summary and links to the files; for a "
+                    "sweep's parent job while it runs, the realisations done so far)",
             responses=problem_responses(401, 404), operation_id="getResults")
-def job_results(job: JobDep, settings: SettingsDep, root: RootDep) -> dict[str, Any]:
+def job_results(job: JobDep, settings: SettingsDep, store: StoreDep, backend: BackendDep,
+                root: RootDep) -> dict[str, Any]:
+    if job.is_parent and job.status in ACTIVE:  # a fanned-out sweep: the aggregate so far
+        return results.so_far_document(job, store, backend, root)
     return results.results_document(job, settings, root)
 
 

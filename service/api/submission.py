@@ -126,10 +126,46 @@ def check_disk(settings: Settings) -> None:
                       headers={"Retry-After": "300"})
 
 
+def fan_out(process: str, scene_data: dict[str, Any], shares: int) -> list[str]:
+    """The child scene texts of a sweep in `shares` shares (none for 1: a plain job); 422
+    naming `shares` when the process is not `sweep` or there are fewer realisations."""
+    from service.fanout import child_scenes
+
+    if shares == 1:
+        return []
+    if process != "sweep":
+        raise invalid_scene([{"loc": "shares", "msg": f"only a sweep is fanned out in shares; "
+                              f"this is a {process} job (give shares=1)"}])
+    try:
+        return child_scenes(scene_data, shares)
+    except ValueError as exc:
+        raise invalid_scene([{"loc": "shares", "msg": str(exc)}]) from None
+
+
+def queue_children(job: Any, store: JobStore, backend: Backend) -> None:
+    """Hand a new parent's children to the backend; 503 when none could be queued."""
+    from service.fanout import refresh
+
+    errors = []
+    for child in store.children(job.id):
+        try:
+            backend.submitted(child)
+        except Exception as exc:
+            log.warning("backend could not take job %s: %s", child.id, exc)
+            errors.append(exc)
+    if errors and len(errors) == job.shares:
+        refresh(store, backend, job)  # failed (system): the key is free for a retry
+        raise Problem(503, "queue-unavailable", "Job queue unavailable",
+                      f"the job was recorded as failed: {errors[0]}; retry (with the same "
+                      "Idempotency-Key) later", headers={"Retry-After": "30"})
+
+
 def submit(process: str | None, data: Any, *, settings: Settings, store: JobStore,
-           backend: Backend, client: Client, key: str | None, root: str) -> JSONResponse:
+           backend: Backend, client: Client, key: str | None, root: str,
+           shares: int = 1) -> JSONResponse:
     """Validate and create a job: 201 with its status (or the earlier job of the same
-    Idempotency-Key, `Idempotent-Replayed: true`)."""
+    Idempotency-Key, `Idempotent-Replayed: true`). A sweep with `shares` > 1 is a parent
+    job of that many child jobs, each a share of the realisations (service.fanout)."""
     body_process, scene_data = unwrap(data)
     if process is not None and body_process is not None and process != body_process:
         raise invalid_scene([{"loc": "process", "msg": f"'{body_process}' in the body but "
@@ -144,13 +180,15 @@ def submit(process: str | None, data: Any, *, settings: Settings, store: JobStor
             PROCESSES[process].check(scene)
         except SceneError as exc:
             raise invalid_scene(exc.problems) from None
+    children = fan_out(process, scene_data, shares)
     text = json.dumps(scene_data, ensure_ascii=False, separators=(",", ":"))
-    digest = hashlib.sha256(f"{process}\n{text}".encode()).hexdigest()
+    request = f"{process}\n{text}" if shares == 1 else f"{process}\n{shares}\n{text}"
+    digest = hashlib.sha256(request.encode()).hexdigest()
     check_disk(settings)
     try:
         job, created = store.submit(process=process, scene=text, client=client.id,
                                     quota=settings.client_quota, idempotency_key=key,
-                                    request_hash=digest)
+                                    request_hash=digest, children=children)
     except QuotaExceeded as exc:
         raise Problem(429, "quota-exceeded", "Too many unfinished jobs",
                       f"you have {exc.active} jobs accepted or running; the limit is "
@@ -159,7 +197,9 @@ def submit(process: str | None, data: Any, *, settings: Settings, store: JobStor
     except IdempotencyConflict:
         raise Problem(422, "idempotency-key-reused", "Idempotency-Key reused",
                       "this Idempotency-Key was used for a different request") from None
-    if created:
+    if created and job.is_parent:
+        queue_children(job, store, backend)
+    elif created:
         try:
             backend.submitted(job)
         except Exception as exc:

@@ -5,6 +5,10 @@
 - `rq`: jobs go to a Redis queue worked by `polydda worker` processes on any machine; a
   thread in the API copies their progress from Redis into the job table.
 
+A parent job (a sweep fanned out in shares, service.fanout) runs nothing: backends see
+only its children (`JobStore.active` leaves parents out) and the supervisor refreshes the
+parent from them every tick.
+
 A backend gets `submitted(job)` after the job's row was committed and `cancel(job_id)` on
 DELETE; the job function itself (service.jobs.execute) is the same for both.
 """
@@ -57,6 +61,7 @@ class Backend:
         while not self._stopping.is_set():
             try:
                 self.tick()
+                self.refresh_parents()
                 if time.monotonic() >= next_housekeeping:
                     next_housekeeping = time.monotonic() + self.housekeeping_period
                     self.housekeeping()
@@ -79,6 +84,13 @@ class Backend:
             log.info("retention: removed %d finished jobs older than %.0f s", len(gone),
                      self.settings.retention)
         return gone
+
+    def refresh_parents(self) -> None:
+        """Bring the parent jobs of fanned-out sweeps up to date with their children
+        (service.fanout): the same on every backend, all state in the job table."""
+        from service.fanout import refresh_all
+
+        refresh_all(self.store, self)
 
     def health(self) -> dict[str, Any]:
         """`status` (`ok`, `degraded`: jobs wait for a worker, `unavailable`: jobs cannot

@@ -8,6 +8,7 @@ writes that change a job's state are conditional on its current status, so two w
 from __future__ import annotations
 
 import contextlib
+import json
 import sqlite3
 import time
 import uuid
@@ -50,6 +51,10 @@ CREATE UNIQUE INDEX IF NOT EXISTS jobs_idempotency ON jobs(client, idempotency_k
 CREATE INDEX IF NOT EXISTS jobs_status ON jobs(status, created);
 CREATE INDEX IF NOT EXISTS jobs_client ON jobs(client, status);
 """
+#: columns added since the first schema (added to an older job table on first use): a
+#: sweep job fanned out in shares is a parent (`shares`, `children`: the JSON list of its
+#: current child per share) of child jobs (`parent`, `share`)
+_ADDED = {"parent": "TEXT", "share": "INTEGER", "shares": "INTEGER", "children": "TEXT"}
 
 
 @dataclass
@@ -75,10 +80,26 @@ class JobRecord:
     cancel_requested: float | None
     attempts: int
     worker_pid: int | None
+    #: a child job: its parent's id and its share (0 .. shares-1)
+    parent: str | None = None
+    share: int | None = None
+    #: a parent job: its number of shares and its current children (JSON list of ids)
+    shares: int | None = None
+    children: str | None = None
 
     @property
     def is_final(self) -> bool:
         return self.status in FINAL
+
+    @property
+    def is_parent(self) -> bool:
+        """A job fanned out in child jobs (it runs nothing itself)."""
+        return self.shares is not None
+
+    @property
+    def child_ids(self) -> list[str]:
+        """A parent's current child per share (empty for other jobs)."""
+        return json.loads(self.children) if self.children else []
 
 
 _COLUMNS = ", ".join(f.name for f in fields(JobRecord))
@@ -109,6 +130,11 @@ class JobStore:
         with self.connect() as db:
             db.execute("PRAGMA journal_mode=WAL")
             db.executescript(_SCHEMA)
+            have = {row[1] for row in db.execute("PRAGMA table_info(jobs)")}
+            for name, kind in _ADDED.items():
+                if name not in have:
+                    db.execute(f"ALTER TABLE jobs ADD COLUMN {name} {kind}")
+            db.execute("CREATE INDEX IF NOT EXISTS jobs_parent ON jobs(parent)")
 
     @contextlib.contextmanager
     def connect(self) -> Iterator[sqlite3.Connection]:
@@ -176,10 +202,24 @@ class JobStore:
         return [JobRecord(*r) for r in rows], int(total)
 
     def active(self) -> list[JobRecord]:
-        """Accepted and running jobs, oldest first."""
+        """Accepted and running jobs that run something (not parents), oldest first."""
         with self.connect() as db:
-            rows = db.execute(f"SELECT {_COLUMNS} FROM jobs WHERE status IN (?, ?) "
-                              "ORDER BY created, rowid", ACTIVE).fetchall()
+            rows = db.execute(f"SELECT {_COLUMNS} FROM jobs WHERE status IN (?, ?) AND "
+                              "shares IS NULL ORDER BY created, rowid", ACTIVE).fetchall()
+        return [JobRecord(*r) for r in rows]
+
+    def active_parents(self) -> list[JobRecord]:
+        """Accepted and running parent jobs, oldest first."""
+        with self.connect() as db:
+            rows = db.execute(f"SELECT {_COLUMNS} FROM jobs WHERE status IN (?, ?) AND "
+                              "shares IS NOT NULL ORDER BY created, rowid", ACTIVE).fetchall()
+        return [JobRecord(*r) for r in rows]
+
+    def children(self, parent_id: str) -> list[JobRecord]:
+        """Every child job of a parent (resubmitted shares too), oldest first."""
+        with self.connect() as db:
+            rows = db.execute(f"SELECT {_COLUMNS} FROM jobs WHERE parent = ? "
+                              "ORDER BY created, rowid", (parent_id,)).fetchall()
         return [JobRecord(*r) for r in rows]
 
     def expired(self, finished_before: float) -> list[JobRecord]:
@@ -206,9 +246,13 @@ class JobStore:
 
     # ------------------------------------------------------------------ writing
     def submit(self, *, process: str, scene: str, client: str, quota: int,
-               idempotency_key: str | None = None,
-               request_hash: str | None = None) -> tuple[JobRecord, bool]:
+               idempotency_key: str | None = None, request_hash: str | None = None,
+               children: Sequence[str] = ()) -> tuple[JobRecord, bool]:
         """Create an accepted job in one transaction; `(job, created)`.
+
+        With `children` (one scene text per share), the job is a parent of as many
+        accepted child jobs, created in the same transaction; the quota counts the
+        children, not the parent (which runs nothing).
 
         With an idempotency key already used by this client, the earlier job is returned
         (`created` False); a different request under the same key raises
@@ -231,18 +275,53 @@ class JobStore:
                         return job, False
                     db.execute("UPDATE jobs SET idempotency_key = NULL WHERE id = ?",
                                (job.id,))
-            active = db.execute("SELECT COUNT(*) FROM jobs WHERE client = ? AND status IN (?, ?)",
-                                (client, *ACTIVE)).fetchone()[0]
-            if active >= quota:
+            active = db.execute("SELECT COUNT(*) FROM jobs WHERE client = ? AND status IN "
+                                "(?, ?) AND shares IS NULL", (client, *ACTIVE)).fetchone()[0]
+            if active + max(1, len(children)) > quota:
                 raise QuotaExceeded(int(active), quota)
             job_id = str(uuid.uuid4())
+            ids = [str(uuid.uuid4()) for _ in children]
             db.execute(
                 "INSERT INTO jobs (id, process, status, client, idempotency_key, request_hash, "
-                "scene, created, updated) VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?)",
+                "scene, created, updated, shares, children) "
+                "VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?)",
                 (job_id, process, ACCEPTED, client, idempotency_key, request_hash, scene, now,
-                 now))
+                 now, len(children) or None, json.dumps(ids) if children else None))
+            for k, (child_id, text) in enumerate(zip(ids, children, strict=True)):
+                self._insert_child(db, child_id, job_id, k, process, client, text, now)
             row = db.execute(f"SELECT {_COLUMNS} FROM jobs WHERE id = ?", (job_id,)).fetchone()
         return JobRecord(*row), True
+
+    @staticmethod
+    def _insert_child(db: sqlite3.Connection, child_id: str, parent_id: str, share: int,
+                      process: str, client: str, scene: str, now: float) -> None:
+        db.execute("INSERT INTO jobs (id, process, status, client, scene, created, updated, "
+                   "parent, share) VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?)",
+                   (child_id, process, ACCEPTED, client, scene, now, now, parent_id, share))
+
+    def resubmit_child(self, parent_id: str, share: int, old_id: str) -> JobRecord | None:
+        """A new accepted child for a parent's share in place of `old_id` (same scene);
+        None when `old_id` is no longer the share's current child (another caller
+        resubmitted it already) or the parent is final."""
+        now = time.time()
+        with self.transaction() as db:
+            row = db.execute("SELECT children, status FROM jobs WHERE id = ?",
+                             (parent_id,)).fetchone()
+            if row is None or row[1] in FINAL:
+                return None
+            ids = json.loads(row[0] or "[]")
+            if not 0 <= share < len(ids) or ids[share] != old_id:
+                return None
+            old = db.execute("SELECT process, client, scene FROM jobs WHERE id = ?",
+                             (old_id,)).fetchone()
+            if old is None:
+                return None
+            ids[share] = str(uuid.uuid4())
+            self._insert_child(db, ids[share], parent_id, share, *old, now)
+            db.execute("UPDATE jobs SET children = ? WHERE id = ?", (json.dumps(ids), parent_id))
+            row = db.execute(f"SELECT {_COLUMNS} FROM jobs WHERE id = ?",
+                             (ids[share],)).fetchone()
+        return JobRecord(*row)
 
     def update(self, job_id: str, only_if: Iterable[str] | None = None, **values: Any) -> bool:
         """Set fields of a job (only while its status is in `only_if`); True if it changed."""
