@@ -8,7 +8,9 @@ solved with it (with the warm start the engine gave), and times on exactly those
 - `cg-jacobi`: the engine's solver (compiled CG, block-Jacobi preconditioner, warm start);
 - `superlu`: scipy's sparse LU, factorized for every K;
 - `cholmod`: CHOLMOD's supernodal Cholesky (scikit-sparse) with the symbolic analysis
-  done once per sparsity pattern and reused, a numeric factorization per K;
+  done once per sparsity pattern and reused, a numeric factorization per K (it also
+  prints how many unknowns' rows change from one K to the next: the rank a factorization
+  update instead of a factorization would take);
 - `amg-cg`: scipy CG preconditioned by pyamg's smoothed aggregation (set up per K).
 
 Each solver's answers are checked against the engine's (relative residual ≤ 1e-8). It
@@ -125,6 +127,18 @@ SOLVERS: dict[str, Callable[[], Callable[[sp.csr_matrix], Callable]]] = {
 }
 
 
+def changed_unknowns(systems: list[Recorded]) -> np.ndarray:
+    """Unknowns whose row of K changed from one factorized K to the next of the same
+    pattern `(m,) int`: an upper bound of the rank a factorization update would take."""
+    out = []
+    for a, b in zip(systems, systems[1:], strict=False):
+        if a.k.shape == b.k.shape and a.k.nnz == b.k.nnz and np.array_equal(
+                a.k.indices, b.k.indices):
+            d = (b.k - a.k).tocoo()
+            out.append(len(np.unique(d.row[d.data != 0])))
+    return np.array(out, dtype=np.int64)
+
+
 def time_solvers(systems: list[Recorded]) -> dict[str, dict[str, float]]:
     """Set-up and solve seconds of each solver on the recorded systems, and the worst
     relative residual of its answers."""
@@ -167,6 +181,10 @@ def main() -> None:
     print(f"jointed cube, sets at {spacing:g} m: {n} blocks, {steps} steps recorded in "
           f"{time.perf_counter() - t0:.1f} s: {nk} K ({size} unknowns, {nnz:.0f} nonzeros on "
           f"average), {nrhs} right-hand sides")
+    ch = changed_unknowns(systems)
+    if len(ch):
+        print(f"unknowns changed between consecutive K of a step: median {np.median(ch):.0f}, "
+              f"min {ch.min()}, max {ch.max()} of {size} (the rank an update would take)")
     res = time_solvers(systems)
     base = res["cg-jacobi"]["total_s"]
     print(f"{'solver':<10} {'set-up/K ms':>12} {'solve/rhs ms':>13} {'total s':>9} "
