@@ -696,15 +696,13 @@ class SweepParameterSpec(_Model):
     realisation k takes the k-th combination, cycling).
     """
 
-    quantity: Literal[
-        "friction_angle", "cohesion", "joint_orientation", "water_level", "kh",
-        "bolt_pretension", "bolt_capacity", "penalty", "time_step"] = Field(
+    quantity: Literal[tuple(SWEEP_QUANTITIES)] = Field(  # type: ignore[valid-type]
         description="what varies (default: the parameter's name): friction_angle "
                     "(degrees), cohesion (Pa), joint_orientation (Fisher scatter of a "
                     "joint's dip and dip direction, degrees), water_level (m, height of the "
                     "phreatic surface's point), kh (fraction of g), bolt_pretension or "
                     "bolt_capacity (N), penalty (N/m), time_step (s)")
-    distribution: Literal["normal", "uniform", "lognormal", "values", "fisher"]
+    distribution: Literal[tuple(_SWEEP_FIELDS)]  # type: ignore[valid-type]
     mean: float | None = Field(None, description="normal or lognormal: the mean (in the "
                                                  "quantity's unit)")
     sd: Positive | None = Field(None, description="normal or lognormal: the standard "

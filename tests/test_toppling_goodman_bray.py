@@ -177,6 +177,14 @@ def test_strength_reduction_brackets_the_limit_equilibrium_angle(built) -> None:
     assert below.failed, below
 
 
+def _at_friction(base, phi: float, duration: float):
+    """`base` with every joint material at friction angle `phi` (deg), run to `duration` s."""
+    return dataclasses.replace(
+        base, joint_materials=[dataclasses.replace(j, friction_angle_rad=np.radians(phi))
+                               for j in base.joint_materials],
+        controls=dataclasses.replace(base.controls, duration=duration))
+
+
 @pytest.mark.slow
 @pytest.mark.xfail(strict=True, reason=(
     "engine: with a stiff penalty the open-close switch cap keeps contacts that chatter "
@@ -191,15 +199,9 @@ def test_a_stiff_penalty_does_not_weaken_the_slope(built) -> None:
     base = dataclasses.replace(built.model, controls=dataclasses.replace(
         built.model.controls, penalty=1e14, record_contacts=False, record_interval=100))
 
-    def at(phi: float, duration: float):
-        return dataclasses.replace(
-            base, joint_materials=[dataclasses.replace(j, friction_angle_rad=np.radians(phi))
-                                   for j in base.joint_materials],
-            controls=dataclasses.replace(base.controls, duration=duration))
-
-    settled = run(at(60.0, 1.0))
+    settled = run(_at_friction(base, 60.0, 1.0))
     assert settled.status == STATUS_COMPLETED, settled.message
-    weakened = run(at(40.0, 3.0), resume_from=settled.state)
+    weakened = run(_at_friction(base, 40.0, 3.0), resume_from=settled.state)
     assert weakened.status == STATUS_COMPLETED, weakened.message
     speed = np.linalg.norm(weakened.state.velocity[:, :3], axis=1).max()
     assert speed < 1e-3, speed
@@ -224,17 +226,11 @@ def test_a_symmetric_slope_does_not_yaw_after_weakening(built) -> None:
     base = dataclasses.replace(built.model, controls=dataclasses.replace(
         built.model.controls, record_contacts=False, record_interval=100))
 
-    def at(phi: float, duration: float):
-        return dataclasses.replace(
-            base, joint_materials=[dataclasses.replace(j, friction_angle_rad=np.radians(phi))
-                                   for j in base.joint_materials],
-            controls=dataclasses.replace(base.controls, duration=duration))
-
-    settled = run(at(45.0, 1.0))
+    settled = run(_at_friction(base, 45.0, 1.0))
     assert settled.status == STATUS_COMPLETED
     c1 = built.block_index("C1")
     yaw_settled = abs(float(_rotation_vector(settled.state.rotation[c1]) @ AXIS))
-    weakened = run(at(40.0, 2.5), resume_from=settled.state)
+    weakened = run(_at_friction(base, 40.0, 2.5), resume_from=settled.state)
     assert weakened.status == STATUS_COMPLETED
     yaw = abs(float(_rotation_vector(weakened.state.rotation[c1]) @ AXIS))
     assert yaw_settled < 1e-10 and yaw < 1e-8, (yaw_settled, yaw)
