@@ -289,9 +289,11 @@ def run_jointed_slope(full: bool, max_wall: float | None = None) -> dict[str, An
         return _exception_row(base, exc)
     worst, balance, work = slope_checks(out.log.frames)
     within = worst <= 1.0 + 1e-6 and abs(balance) <= 0.01 * work
+    reseat = out.result.summary.get("reseat_dissipation", 0.0)
     return _finish(base, out, within, worst,
                    f"fastest block {worst:.2f} × twice free fall, balance "
-                   f"{balance / work:+.2%} of gravity's work over {out.simulated:g} s")
+                   f"{balance / work:+.2%} of gravity's work over {out.simulated:g} s "
+                   f"(springs' re-seat loss {reseat / work:.2%}, booked as dissipation)")
 
 
 # --------------------------------------------------------------------------- section

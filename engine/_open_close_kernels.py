@@ -15,6 +15,9 @@ import numpy as np
 from engine._motion_kernels import point_motion
 from engine.contacts import LOCKED, OPEN, SLIDING
 
+#: a contact's switch count that marks it sliding for the rest of the step
+FINAL_SLIDE = 1 << 30
+
 
 @nb.njit(cache=True)
 def contact_loads(f: np.ndarray, dof_map: np.ndarray, bi: np.ndarray, bj: np.ndarray,
@@ -76,29 +79,34 @@ def update_modes(d0: np.ndarray, normal: np.ndarray, dr: np.ndarray, shear0: np.
                  broken: np.ndarray, reopenings: np.ndarray, switches: np.ndarray,
                  tan_phi: np.ndarray, tension_force: np.ndarray,
                  cohesion_force: np.ndarray, fric_mag: np.ndarray, fric_prev: np.ndarray,
-                 kn: float, ks: float, cn: np.ndarray, cs: np.ndarray, dt: float,
+                 kn: float, ks: float, cn: np.ndarray, dt: float,
                  open_close_gap: float, max_reopenings: int,
                  max_switches: int):  # noqa: ANN201 (a long tuple, see docstring)
     """Table 2 for every contact after a solve with relative displacements `dr (c, 3)`.
 
-    Contact forces are the penalty springs' and the dashpots' (`cn`, `cs (c,)` N·s/m, on
-    the step's relative velocity; the normal dashpot from the entrance on for a contact
-    entering in the step), compression positive. A closed contact whose spring presses
-    while its normal dashpot pulls loses the dashpot for the rest of the step (`cn` set to
-    0 in place); one whose normal force, or whose spring across a gap, is tensile beyond
-    its tensile strength opens (at most `max_reopenings` times per step) and its bond
-    breaks; a locked one whose shear force exceeds `tan φ N + c A` slides along that force,
-    a sliding one whose slip reverses or that a locked spring could hold locks again,
-    continuing from its friction force (at most `max_switches` locked <-> sliding changes
-    per step); an open contact that penetrates (deeper than `open_close_gap`) and would
-    press (the force law of the opening test, so a contact at rest on the boundary does not
-    chatter) closes at its first entrance (eqs. 42-47), sliding if the shear after entrance
-    exceeds friction. Updates `offset`, `broken`, `reopenings`, `switches` in place.
-    Returns `(mode, tangent, nstar, d1, dr_t, along, fn, changed, closed_changed,
-    fric_change)`: the new modes, sliding directions and friction normal forces N*, the
-    end gaps, tangential slips, slips along the old tangent, normal forces, whether any
-    mode / any open-closed state changed, and the largest change of the friction forces
-    relative to their largest value.
+    Contact forces are the penalty springs' and the normal dashpots' (`cn (c,)` N·s/m, on
+    the step's normal motion, from the entrance on for a contact entering in the step),
+    compression positive; the shear force is the spring's alone (a shear dashpot on a
+    locked contact would be viscous static friction: it held Goodman–Bray's C10 up). A
+    closed contact whose spring presses while its normal dashpot pulls loses the dashpot
+    for the rest of the step (`cn` set to 0 in place); one whose normal force, or whose
+    spring across a gap, is tensile beyond its tensile strength opens (at most
+    `max_reopenings` times per step) and its bond breaks; a locked one whose shear force
+    exceeds `tan φ N + c A` slides along that force, a sliding one whose slip reverses or
+    that a locked spring could hold locks again, continuing from its friction force. After
+    `max_switches` locked <-> sliding changes in a step a contact sits at its friction
+    limit: it stays locked and its spring's anchor (`offset`) slides back until the shear
+    force is the friction (return mapping), unless the iteration set it sliding for good
+    (`switches` = FINAL_SLIDE). An open contact that penetrates (deeper than
+    `open_close_gap`) and would press (the force law of the opening test, so a contact at
+    rest on the boundary does not chatter) closes at its first entrance (eqs. 42-47),
+    sliding if the shear after entrance exceeds friction. Updates `offset`, `broken`,
+    `reopenings`, `switches` in place. Returns `(mode, tangent, nstar, d1, dr_t, along, fn,
+    changed, closed_changed, fric_change, anchored)`: the new modes, sliding directions and
+    friction normal forces N*, the end gaps, tangential slips, slips along the old tangent,
+    normal forces, whether any mode / any open-closed state changed, the largest change of
+    the friction forces relative to their largest value, and how far each capped lock's
+    anchor slid (m).
     """
     c = len(d0)
     new_mode = mode.copy()
@@ -112,6 +120,7 @@ def update_modes(d0: np.ndarray, normal: np.ndarray, dr: np.ndarray, shear0: np.
     closed_changed = False
     fric_top = 0.0
     fric_diff = 0.0
+    anchored = np.zeros(c)
     for k in range(c):
         n0, n1, n2 = normal[k, 0], normal[k, 1], normal[k, 2]
         dn = dr[k, 0] * n0 + dr[k, 1] * n1 + dr[k, 2] * n2
@@ -147,8 +156,7 @@ def update_modes(d0: np.ndarray, normal: np.ndarray, dr: np.ndarray, shear0: np.
         elif closed:
             limit = tan_phi[k] * max(normal_force, 0.0) + (0.0 if broken[k]
                                                            else cohesion_force[k])
-            cv = cs[k] / dt
-            f0, f1, f2 = ks * s0 + cv * t0, ks * s1 + cv * t1, ks * s2 + cv * t2
+            f0, f1, f2 = ks * s0, ks * s1, ks * s2
             ts = np.sqrt(f0 * f0 + f1 * f1 + f2 * f2)
             free = switches[k] < max_switches
             if m == LOCKED and free and ts > limit * (1 + 1e-9):
@@ -157,8 +165,22 @@ def update_modes(d0: np.ndarray, normal: np.ndarray, dr: np.ndarray, shear0: np.
                 new_tangent[k, 0], new_tangent[k, 1], new_tangent[k, 2] = (
                     f0 / ts, f1 / ts, f2 / ts)
                 broken[k] = True
-            elif m == SLIDING and free and (al < 0 or (ks + cv) * al
-                                            <= tan_phi[k] * normal_force):
+            elif m == LOCKED and ts > limit * (1 + 1e-9):
+                # a contact that chatters between locked and sliding sits at its friction
+                # limit: it stays locked, and its spring's anchor slides back until the
+                # shear force is the friction (return mapping; loads change, K does not)
+                scale = limit / ts - 1.0
+                offset[k, 0] += scale * f0 / ks
+                offset[k, 1] += scale * f1 / ks
+                offset[k, 2] += scale * f2 / ks
+                broken[k] = True
+                anchored[k] = (ts - limit) / ks  # how far the anchor slid (m)
+                fric_top = max(fric_top, limit)
+                fric_diff = max(fric_diff, ts - limit)
+            elif m == SLIDING and switches[k] < FINAL_SLIDE and (
+                    al < 0 or ks * al <= tan_phi[k] * normal_force):
+                # after the switch cap a slider may still lock, never slide again (unless
+                # the iteration set it sliding for good: FINAL_SLIDE)
                 nm = LOCKED
                 switches[k] += 1
                 # the re-locked spring continues from the friction force (no jump)
@@ -173,7 +195,7 @@ def update_modes(d0: np.ndarray, normal: np.ndarray, dr: np.ndarray, shear0: np.
                 offset[k, r] = -tstar * dr_t[k, r]
             a0, a1, a2 = (1 - tstar) * t0, (1 - tstar) * t1, (1 - tstar) * t2
             an = np.sqrt(a0 * a0 + a1 * a1 + a2 * a2)
-            nm = SLIDING if (ks + cs[k] / dt) * an > tan_phi[k] * normal_force else LOCKED
+            nm = SLIDING if ks * an > tan_phi[k] * normal_force else LOCKED
             if an > 0:
                 new_tangent[k, 0], new_tangent[k, 1], new_tangent[k, 2] = (
                     a0 / an, a1 / an, a2 / an)
@@ -194,7 +216,7 @@ def update_modes(d0: np.ndarray, normal: np.ndarray, dr: np.ndarray, shear0: np.
             closed_changed = True
     fric_change = fric_diff / max(fric_top, 1e-300)
     return (new_mode, new_tangent, new_nstar, d1, dr_t, along, fn, changed, closed_changed,
-            fric_change)
+            fric_change, anchored)
 
 
 @nb.njit(cache=True)
@@ -263,13 +285,13 @@ def initial_modes(bi: np.ndarray, bj: np.ndarray, point_i: np.ndarray,
 def step_results(d0: np.ndarray, d1: np.ndarray, normal: np.ndarray, shear0: np.ndarray,
                  offset: np.ndarray, dr: np.ndarray, dr_t: np.ndarray, mode: np.ndarray,
                  tangent: np.ndarray, fric: np.ndarray, fric_mag: np.ndarray, kn: float,
-                 ks: float, cn: np.ndarray, cs: np.ndarray, dt: float
+                 ks: float, cn: np.ndarray, dt: float
                  ) -> tuple[np.ndarray, np.ndarray, np.ndarray, float, float, float]:
     """Forces and energies of a converged step: `(normal_force (c,), shear_force (c, 3),
     shear (c, 3), friction_work, spring_dissipation, damping_dissipation)`: normal force
     −kn d1 − cn e/Δt (compression positive; e the normal motion since the start or since the
     entrance) of closed contacts; shear force on block i,
-    −ks × the shear spring − cs × the slip rate (locked) minus the friction force; the
+    −ks × the shear spring (locked) minus the friction force; the
     shear spring stretch of locked contacts; the work of the friction forces over the
     slips; what the implicit penalty springs dissipated, ½ k Δ² of each spring's change
     (β = ½, γ = 1) plus what springs that opened had stored; and what the dashpots took,
@@ -290,9 +312,8 @@ def step_results(d0: np.ndarray, d1: np.ndarray, normal: np.ndarray, shear0: np.
         ss0 = s00 * s00 + s01 * s01 + s02 * s02
         for j in range(3):
             sf[k, j] = -fric[k, j]
-        if m == OPEN:
-            if d0[k] < 0:  # a spring that opened gives up what it stored
-                num += 0.5 * kn * d0[k] * d0[k] + 0.5 * ks * ss0
+        if m == OPEN:  # a spring that opened gives up what it stored
+            num += 0.5 * kn * min(d0[k], 0.0) ** 2 + 0.5 * ks * ss0
             continue
         if m == SLIDING:  # a shear spring that let go gives up what it stored
             num += 0.5 * ks * ss0
@@ -311,7 +332,6 @@ def step_results(d0: np.ndarray, d1: np.ndarray, normal: np.ndarray, shear0: np.
                 t2 - tn * n2
             slip2 = dr_t[k, 0] ** 2 + dr_t[k, 1] ** 2 + dr_t[k, 2] ** 2
             for j in range(3):
-                sf[k, j] -= ks * stretch[k, j] + cs[k] * dr_t[k, j] / dt
+                sf[k, j] -= ks * stretch[k, j]
             num += 0.5 * ks * (slip2 + ss0 - (a0 * a0 + a1 * a1 + a2 * a2))
-            damp += cs[k] * slip2 / dt
     return nf, sf, stretch, fw, num, damp

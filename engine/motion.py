@@ -127,7 +127,7 @@ def _penetrations(system: BlockSystem, state: State, res: StepResult
                   ) -> tuple[np.ndarray, Diagnostics]:
     """Each block's deepest contact penetration at the end of the step `(n,)` m (what the
     next step's search must reach), and the diagnostics with the run's deepest
-    penetrations updated (a copy: the step may still be redone)."""
+    penetrations and the springs' re-seat loss updated (a copy: the step may be redone)."""
     cs, gap = res.contacts, res.gap1
     deepest = np.zeros(system.n)
     if len(gap):
@@ -141,7 +141,9 @@ def _penetrations(system: BlockSystem, state: State, res: StepResult
     if np.any(closed):
         thin = np.minimum(system.thickness[cs.block_i], system.thickness[cs.block_j])
         ratio = max(ratio, float(np.max(-gap[closed] / thin[closed], initial=0.0)))
-    return deepest, dataclasses.replace(d, max_penetration=pen, max_penetration_ratio=ratio)
+    return deepest, dataclasses.replace(
+        d, max_penetration=pen, max_penetration_ratio=ratio,
+        reseat_dissipation=d.reseat_dissipation + res.reseat_dissipation)
 
 
 def bolt_energy(system: BlockSystem, state: State) -> float:

@@ -5,7 +5,9 @@ Table 1 for new ones. Each cycle adds the contact terms of the current modes to 
 only when the closed or locked contacts change), solves, and updates every contact's mode by
 Table 2 (with first entrance for contacts that close within the step). The iteration
 converges on open / closed (paper 4.3); locked <-> sliding changes iterate too but are
-bounded per contact, and the explicit friction forces are iterated to a fixed point without
+bounded per contact (one that keeps switching sits at its friction limit: it stays locked
+and its spring's anchor is returned to the friction force, or slides if the anchor keeps
+moving), and the explicit friction forces are iterated to a fixed point without
 refactoring. Rescue rules, each a named function below, keep a converged step honest:
 contacts kept closed by the reopening cap must not end in tension, sliding contacts kept by
 the switch cap must not slip against their friction, and no spring may release energy it
@@ -23,7 +25,12 @@ import numpy as np
 
 from engine import assembly as asm
 from engine._assembly_kernels import relative_displacement
-from engine._open_close_kernels import contact_loads, step_results, update_modes
+from engine._open_close_kernels import (
+    FINAL_SLIDE,
+    contact_loads,
+    step_results,
+    update_modes,
+)
 from engine._open_close_kernels import initial_modes as _initial_modes
 from engine.block_terms import block_dissipation, block_terms, bolt_links, kinetic_energy
 from engine.contacts import LOCKED, OPEN, SLIDING, ContactSet
@@ -40,7 +47,8 @@ FRICTION_ITERATIONS_PER_CHANGE = 6
 #: after that many cycles without a mode change, a friction change below this is accepted:
 #: the explicit friction fixed point of a large contact system can creep instead of converge
 FRICTION_RTOL_STALLED = 1e-2
-#: locked <-> sliding switches a contact may make in one step before its mode is kept
+#: locked <-> sliding switches a contact may make in one step; after them it is held at its
+#: friction limit (its anchor returned, `update_modes`) or slides for good (ANCHOR_QUIET_CYCLES)
 MAX_SHEAR_SWITCHES = 2
 #: times a contact may open in one step before it is kept closed for the rest of the step
 MAX_REOPENINGS = 2
@@ -101,7 +109,6 @@ class _Terms:
     cohesion_force: np.ndarray
     tension_force: np.ndarray
     cn: np.ndarray
-    cs: np.ndarray
 
 
 def contact_damping(system: BlockSystem, state: State, contacts: ContactSet
@@ -128,7 +135,9 @@ def _terms(system: BlockSystem, state: State, contacts: ContactSet, areas: np.nd
     nd = system.ndof
     bi, bj = contacts.block_i, contacts.block_j
     jm = contacts.joint_material
-    cn, cs = contact_damping(system, state, contacts)
+    # only the normal dashpot acts inside the solve: a shear dashpot on a locked contact is
+    # viscous static friction (the shear dashpots after the step, engine.damping, keep theirs)
+    cn, _ = contact_damping(system, state, contacts)
     return _Terms(
         bi=bi, bj=bj, normal=contacts.normal, d0=contacts.gap, shear0=shear0,
         ti=np.ascontiguousarray(asm.displacement_matrices(
@@ -137,7 +146,7 @@ def _terms(system: BlockSystem, state: State, contacts: ContactSet, areas: np.nd
             contacts.point_j, state.centroid[bj])[:, :, :nd]),
         dmap=np.ascontiguousarray(system.dof_map[:, :nd]), tan_phi=system.tan_phi[jm],
         cohesion_force=system.cohesion[jm] * areas, tension_force=system.tension[jm] * areas,
-        cn=cn, cs=cs)
+        cn=cn)
 
 
 @dataclass
@@ -184,8 +193,8 @@ class _LinearSystem:
         self.system, self.kb, self.t, self.dt = system, kb, t, dt
         #: two-point springs between free blocks that are not contacts (rock bolts)
         self.links = links
-        #: stiffness of each contact's shear spring with its dashpot (N/m)
-        self.ks = system.ks + t.cs / dt
+        #: stiffness of each contact's shear spring (N/m)
+        self.ks = np.full(len(t.bi), system.ks)
         self.plan: asm.SystemPlan | None = None
         self.solver = None
         self.key: tuple[bytes, bytes] | None = None
@@ -248,6 +257,7 @@ class _Cycle:
     changed: bool
     closed_changed: bool
     fric_change: float
+    anchored: np.ndarray  # how far capped locks' anchors slid back to friction (m)
 
 
 def _cycle(system: BlockSystem, state: State, t: _Terms, m: _Modes, lin: _LinearSystem,
@@ -270,7 +280,7 @@ def _cycle(system: BlockSystem, state: State, t: _Terms, m: _Modes, lin: _Linear
     out = update_modes(t.d0, t.normal, dr, t.shear0, m.offset, m.mode, m.tangent, m.broken,
                        m.reopenings, m.switches, t.tan_phi, t.tension_force,
                        t.cohesion_force, fric_mag, m.fric_prev, system.kn, system.ks, m.cn,
-                       t.cs, dt, system.open_close_gap, MAX_REOPENINGS, MAX_SHEAR_SWITCHES)
+                       dt, system.open_close_gap, MAX_REOPENINGS, MAX_SHEAR_SWITCHES)
     clock = diag.tick("open_close", clock)
     return _Cycle(x, fric_mag, fric, dr, *out), clock
 
@@ -279,7 +289,7 @@ def _settled(m: _Modes, cyc: _Cycle, was_sliding: np.ndarray) -> bool:
     """No mode changed, and the friction forces settled (or nothing slides)."""
     settled = cyc.fric_change <= FRICTION_RTOL or (
         m.steady >= FRICTION_ITERATIONS_PER_CHANGE and cyc.fric_change <= FRICTION_RTOL_STALLED)
-    return not cyc.changed and (settled or not np.any(was_sliding))
+    return not cyc.changed and (settled or not (np.any(was_sliding) or np.any(cyc.anchored > 0)))
 
 
 def _rescue_once(m: _Modes, breaking: np.ndarray, rescued: np.ndarray, mode: int,
@@ -334,6 +344,44 @@ def lock_reversed_sliders(system: BlockSystem, t: _Terms, m: _Modes, cyc: _Cycle
     return True
 
 
+#: quiet cycles (no mode change) after which capped locks whose anchors still slide are set
+#: sliding: a contact at its friction limit settles in a few cycles, a real slip drags
+#: its anchor on and on (the elastic stiffness converges slowly on a slip)
+ANCHOR_QUIET_CYCLES = 2 * FRICTION_ITERATIONS_PER_CHANGE
+
+
+def slide_dragged_anchors(system: BlockSystem, t: _Terms, m: _Modes, cyc: _Cycle) -> bool:
+    """Capped locked contacts whose anchors still slide after ANCHOR_QUIET_CYCLES quiet
+    cycles are sliding, not at their friction limit: set them sliding along their shear
+    force for the rest of the step and iterate on (True)."""
+    now = (cyc.anchored > 0) & (m.steady >= ANCHOR_QUIET_CYCLES)
+    if not np.any(now):
+        return False
+    r = t.shear0 + m.offset + cyc.dr
+    stretch = r - np.einsum("ij,ij->i", r, t.normal)[:, None] * t.normal
+    m.mode = m.mode.copy()
+    m.mode[now] = SLIDING
+    m.tangent = m.tangent.copy()
+    m.tangent[now] = stretch[now] / np.maximum(np.linalg.norm(stretch[now], axis=1),
+                                               1e-300)[:, None]
+    m.nstar = np.where(now, np.maximum(cyc.fn, 0.0), m.nstar)
+    m.switches[now] = FINAL_SLIDE
+    m.steady = 0
+    return True
+
+
+def reseat_loss(system: BlockSystem, state: State, t: _Terms) -> float:
+    """Energy (J) the springs held at the end of the last step that the step's re-detected
+    contacts do not start with: a contact found shallower, on another plane, or not at all
+    (never deeper: `contact_step.plausible_gaps`). The step's spring terms start from the
+    new gaps `t.d0` and shears `t.shear0`; this is booked as numerical dissipation. A spring
+    that starts with more than it held (a rotation's second-order shift) is not booked: that
+    stays visible to the energy watchdog as created energy."""
+    start = (0.5 * system.kn * float(np.sum(np.minimum(t.d0, 0.0) ** 2))
+             + 0.5 * system.ks * float(np.sum(t.shear0 ** 2)))
+    return max(state.contact_energy - start, 0.0)
+
+
 def _converged(system: BlockSystem, state: State, contacts: ContactSet, t: _Terms,
                m: _Modes, cyc: _Cycle, mass: np.ndarray, iterations: int,
                dt: float) -> StepResult:
@@ -342,7 +390,7 @@ def _converged(system: BlockSystem, state: State, contacts: ContactSet, t: _Term
     cycle of a fast step would accelerate the blocks: redo the step smaller)."""
     nf, sf, shear1, fw, num, damp = step_results(
         t.d0, cyc.d1, t.normal, t.shear0, m.offset, cyc.dr, cyc.dr_t, m.mode, m.tangent,
-        cyc.fric, cyc.fric_mag, system.kn, system.ks, m.cn, t.cs, dt)
+        cyc.fric, cyc.fric_mag, system.kn, system.ks, m.cn, dt)
     d = np.zeros((system.n, 12))
     free = system.dof_map >= 0
     d[free] = cyc.x[system.dof_map[free]]
@@ -351,12 +399,14 @@ def _converged(system: BlockSystem, state: State, contacts: ContactSet, t: _Term
     if -num > SPRING_ENERGY_RTOL * kinetic + system.energy_floor:
         raise StepFailure(f"open-close iteration settled with springs that release {-num:.3g} "
                           "J they never stored", "spring_energy")
+    reseat = reseat_loss(system, state, t)
     return StepResult(
         d=d, contacts=dataclasses.replace(contacts, mode=m.mode.astype(np.int8),
                                           tangent=m.tangent),
         gap1=cyc.d1, shear=shear1, slip=cyc.dr_t, normal_force=nf, shear_force=sf,
         friction_work=fw, iterations=iterations, mode_changes=m.mode_changes,
-        numerical_dissipation=num, damping_dissipation=damp, broken=m.broken)
+        numerical_dissipation=num + reseat, damping_dissipation=damp, broken=m.broken,
+        reseat_dissipation=reseat)
 
 
 def open_close_iteration(system: BlockSystem, state: State, contacts: ContactSet,
@@ -380,6 +430,8 @@ def open_close_iteration(system: BlockSystem, state: State, contacts: ContactSet
         m.fric_prev = cyc.fric
         m.mode, m.tangent, m.nstar = cyc.mode, cyc.tangent, cyc.nstar
         m.steady = 0 if cyc.changed else m.steady + 1
+        if slide_dragged_anchors(system, t, m, cyc):
+            continue
         if not _settled(m, cyc, was_sliding):
             continue
         if release_held_contacts(system, t, m, cyc):

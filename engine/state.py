@@ -77,6 +77,9 @@ class Diagnostics:
     max_penetration: float = 0.0
     max_penetration_ratio: float = 0.0
     relaxed_contacts: int = 0
+    #: energy (J) the contact springs lost between steps, re-detected shallower, on another
+    #: plane or not at all (booked as numerical dissipation)
+    reseat_dissipation: float = 0.0
     cuts: dict[str, int] = field(default_factory=dict)
     #: steps by what limited their Δt (:data:`engine.stepping.LIMITS`): the asked Δt, the
     #: run's end, a cut in the step (by the cut's reason), a cut kept from the step before,
@@ -167,6 +170,9 @@ class StepResult:
     numerical_dissipation: float = 0.0
     damping_dissipation: float = 0.0
     broken: np.ndarray | None = None
+    #: of `numerical_dissipation`, what the springs lost between the steps (J; re-detected
+    #: shallower, on another plane or not at all: `open_close.reseat_loss`)
+    reseat_dissipation: float = 0.0
 
 
 def initial_state(centroid: np.ndarray, velocity: np.ndarray, dt: float) -> State:

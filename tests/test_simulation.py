@@ -427,9 +427,10 @@ def test_cut_rock_mass_keeps_its_time_step(friction_deg: float) -> None:
 
 @pytest.mark.parametrize(("case", "dt", "penalty"), [
     ("vertex_vertex", 0.01, 1e10),   # a contact held closed in tension threw the cube
-    # re-detection on another plane started a deeper spring; with the damped contact law
-    # its soft (1e8 N/m) springs end a step in tension at 0.81 s: it stops, saying so
-    pytest.param("vertex_vertex", 1e-3, 1e8, id="vertex_vertex-soft-fails-clearly"),
+    # re-detection on another plane started a deeper spring; later its soft (1e8 N/m) springs
+    # ended a step in tension at 0.81 s, and it stopped, saying so; without a shear dashpot
+    # inside the solve it lands and slides off (1.7 mm penetration, no energy created)
+    pytest.param("vertex_vertex", 1e-3, 1e8, id="vertex_vertex-soft"),
     ("slide_off", 0.05, 1e10),       # a contact held closed in tension kept it on the edge
     # capped sliding contacts slipping back against their friction fed energy to the pile
     pytest.param("pile100", 0.01, 1e10, marks=[pytest.mark.slow, pytest.mark.ci]),
@@ -442,11 +443,7 @@ def test_stability_cases_that_used_to_end_wrong(case: str, dt: float, penalty: f
     from benchmarks.stability import STAB_CASES, run_one
 
     row = run_one(STAB_CASES[case], dt, penalty, "regression")
-    if penalty < 1e9:
-        assert row["verdict"] == "failed (clear status)", row["detail"]
-        assert "never stored" in row["message"]
-    else:
-        assert row["verdict"] == "pass", row["detail"]
+    assert row["verdict"] == "pass", row["detail"]
     assert row["energy_growth"] < 0.01
 
 
