@@ -4,7 +4,7 @@ contacts whose relative velocity reversed in it, or that part while their spring
 DDA's integrator (velocities `2 d / Δt − v0`, β = ½, γ = 1) leaves an oscillation faster
 than the step resolves — a stiff penalty spring's — undamped: it rings at the step's own
 frequency, velocities flipping sign every step, and a block resting on its contacts rocks
-and walks down a slope its friction should hold. The dashpots inside the solve
+and walks down a slope its friction should hold. The normal dashpots inside the solve
 (`open_close.contact_damping`) cannot stop it: they act on the step's mean velocity, which
 a ring keeps near zero. And a penalty spring that gives back as motion the energy it
 stored makes a block rebound by an amount that depends on the penalty, a numerical
@@ -13,13 +13,16 @@ by the dashpots (~0.4 at ζ 0.5). Here, after the converged step, closed contact
 their dashpots again, implicitly on the end velocities — `(M + Δt Jᵀ C J) v = M v1`, J
 their relative velocity — normally where the relative velocity reversed or the blocks part
 while the spring still presses (an impact is plastic, whatever the penalty), and
-tangentially where a locked contact's slip reversed. That kills a ring at any stiffness
-(c Δt ≫ m), moves no block and only removes kinetic energy. A contact moving one way
-through the step (a column starting to topple, a block sliding) keeps its tangential
-motion: a dashpot on it would act as viscous static friction.
+tangentially where a locked contact's slip reversed, toward the step's mean slip rate (a
+ring about a drift keeps the drift). That kills a ring at any stiffness (c Δt ≫ m) and
+moves no block. A contact moving one way through the step (a column starting to topple, a
+block sliding) keeps its tangential motion: a dashpot on it would act as viscous static
+friction.
 """
 
 from __future__ import annotations
+
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -59,6 +62,61 @@ def ringing(before: State, sub: ContactSet, v1: np.ndarray) -> tuple[np.ndarray,
     vn0, vt0 = _relative_velocity(before, sub, before.velocity)
     vn1, vt1 = _relative_velocity(before, sub, v1)
     return (vn0 * vn1 < 0.0) | (vn1 > 0.0), np.einsum("ij,ij->i", vt0, vt1) < 0.0
+
+
+@dataclass
+class _Dashpots:
+    """The ringing contacts' dashpots after a step: `sub` the contacts, `plan` M + Δt Jᵀ C J,
+    `ti`, `tj (r, 3, d)` T at their points, `rhs` M v0 on the unknowns, their dashpots `cn`,
+    `cshear (r,)` N·s/m and force limits `pressed`, `headroom (r,)` N."""
+
+    system: BlockSystem
+    before: State
+    sub: ContactSet
+    plan: asm.SystemPlan
+    ti: np.ndarray
+    tj: np.ndarray
+    rhs: np.ndarray
+    v0: np.ndarray
+    cn: np.ndarray
+    cshear: np.ndarray
+    pressed: np.ndarray
+    headroom: np.ndarray
+    dt: float
+
+    def velocities(self, v_target: np.ndarray) -> np.ndarray:
+        """End velocities `(n, 12)` with the dashpots pulling the shear rings' slip rates
+        toward `v_target (r, 3)` m/s, each dashpot scaled down to its force limit."""
+        system, sub, dt, nd = self.system, self.sub, self.dt, self.system.ndof
+        free = system.dof_map >= 0
+        c_n, c_s, v = self.cn, self.cshear, self.v0
+        for _ in range(MAX_DAMPING_PASSES):
+            if not (np.any(c_n > 0) or np.any(c_s > 0)):
+                break
+            a, adiag = self.plan.matrix(dt * c_n, dt * c_s)
+            impulse = (dt * c_s)[:, None] * v_target  # the dashpots' pull toward the target
+            gi, gj = np.zeros((len(sub), 12)), np.zeros((len(sub), 12))
+            gi[:, :nd] = np.einsum("cki,ck->ci", self.ti, impulse)
+            gj[:, :nd] = np.einsum("cki,ck->ci", self.tj, impulse)
+            b = (self.rhs + asm.scatter_vector(system.dof_map, sub.block_i, gi, system.n_unknowns)
+                 - asm.scatter_vector(system.dof_map, sub.block_j, gj, system.n_unknowns))
+            try:
+                x = make_solver(a, nd, adiag, BlockJacobi(), self.plan.coupled)(b, None)
+            except SolveError as exc:
+                raise StepFailure(str(exc), "solve") from exc
+            v = self.v0.copy()
+            v[free] = x[system.dof_map[free]]
+            vn, vt_vec = _relative_velocity(self.before, sub, v)
+            vt = np.linalg.norm(vt_vec - v_target, axis=1)
+            pulling = c_n * vn > self.pressed * (1.0 + 1e-9)
+            over = c_s * vt > self.headroom * (1.0 + 1e-9)
+            if not (np.any(pulling) or np.any(over)):
+                break
+            # (pulling and over imply vn, vt > 0: c v exceeds a force ≥ 0)
+            c_n, c_s = c_n.copy(), c_s.copy()
+            c_n[pulling] = self.pressed[pulling] / vn[pulling]
+            c_s[over] = self.headroom[over] / vt[over]
+        return v
 
 
 def damp_contacts(system: BlockSystem, before: State, res: StepResult, after: State,
@@ -103,28 +161,14 @@ def damp_contacts(system: BlockSystem, before: State, res: StepResult, after: St
     momentum = np.einsum("nij,nj->ni", mass, v0)
     rhs = asm.scatter_vector(system.dof_map, np.arange(system.n), momentum,
                              system.n_unknowns)
-    free = system.dof_map >= 0
-    v = v0
-    for _ in range(MAX_DAMPING_PASSES):
-        if not (np.any(cn > 0) or np.any(cshear > 0)):
-            break
-        a, adiag = plan.matrix(dt * cn, dt * cshear)
-        try:
-            x = make_solver(a, nd, adiag, BlockJacobi(), plan.coupled)(rhs, None)
-        except SolveError as exc:
-            raise StepFailure(str(exc), "solve") from exc
-        v = v0.copy()
-        v[free] = x[system.dof_map[free]]
-        vn, vt_vec = _relative_velocity(before, sub, v)
-        vt = np.linalg.norm(vt_vec, axis=1)
-        pulling = cn * vn > pressed * (1.0 + 1e-9)
-        over = cshear * vt > headroom * (1.0 + 1e-9)
-        if not (np.any(pulling) or np.any(over)):
-            break
-        # (pulling and over imply vn, vt > 0: c v exceeds a force ≥ 0)
-        cn, cshear = cn.copy(), cshear.copy()
-        cn[pulling] = pressed[pulling] / vn[pulling]
-        cshear[over] = headroom[over] / vt[over]
+    dash = _Dashpots(system, before, sub, plan, ti, tj, rhs, v0, cn, cshear, pressed,
+                     headroom, dt)
+    # a shear ring is damped toward the step's mean slip rate, not to rest: a contact whose
+    # slip rings about a drift (a column starting to topple, a toe starting to slip) keeps
+    # it; where that would add kinetic energy, the rings are damped to rest instead
+    v = dash.velocities(np.where(ring_t[rings, None], res.slip[closed][rings] / dt, 0.0))
+    if kinetic_energy(v, mass) > kinetic_energy(v0, mass):
+        v = dash.velocities(np.zeros((len(rings), 3)))
     removed = kinetic_energy(v0, mass) - kinetic_energy(v, mass)
     after.velocity = v
     after.energies["damping_dissipation"] += float(removed)
