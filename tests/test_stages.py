@@ -178,6 +178,40 @@ def test_update_modes_follows_table_2() -> None:
     assert changed
 
 
+def test_a_contact_past_the_switch_cap_is_held_at_its_friction_limit() -> None:
+    """A locked contact that has used its locked <-> sliding switches and is sheared past
+    friction stays locked; its spring's anchor slides back so that ks × stretch is tan φ N
+    (return mapping), and the kernel reports how far the anchor slid."""
+    normal = np.array([[0.0, 0.0, 1.0]])
+    d0, dr = np.array([-1e-5]), np.array([[1e-3, 0.0, 0.0]])
+    z3, z = np.zeros((1, 3)), np.zeros(1)
+    offset = z3.copy()
+    out = update_modes(d0, normal, dr, z3, offset, np.array([LOCKED], np.int8),
+                       np.array([[1.0, 0, 0]]), np.zeros(1, bool), np.zeros(1, np.int64),
+                       np.full(1, 2, np.int64), np.full(1, 0.5), z, z, z.copy(), z3, 1e9,
+                       1e9, z.copy(), 1e-3, 0.0, 2, 2)
+    assert out[0][0] == LOCKED
+    stretch = offset[0] + dr[0]  # N = 1e9 × 1e-5 = 1e4 N, friction 5e3 N
+    assert 1e9 * stretch[0] == pytest.approx(5e3)
+    assert out[10][0] == pytest.approx(1e-3 - 5e-6)
+
+
+def test_reseat_loss_books_what_springs_lost_between_steps_not_gains() -> None:
+    """The springs' energy at the end of a step that the next step's contacts do not start
+    with is booked as dissipation; a spring starting with more is left to the watchdog."""
+    from types import SimpleNamespace
+
+    from engine.open_close import reseat_loss
+
+    system = SimpleNamespace(kn=1e9, ks=5e8)
+    t = SimpleNamespace(d0=np.array([-1e-5, 2e-6]), shear0=np.array([[2e-6, 0.0, 0.0],
+                                                                     [0.0, 0.0, 0.0]]))
+    start = 0.5 * 1e9 * 1e-10 + 0.5 * 5e8 * 4e-12
+    held = SimpleNamespace(contact_energy=start + 3.0)
+    assert reseat_loss(system, held, t) == pytest.approx(3.0)
+    assert reseat_loss(system, SimpleNamespace(contact_energy=start - 1.0), t) == 0.0
+
+
 def test_a_parting_contact_loses_its_dashpot_not_its_spring() -> None:
     """A closed contact whose spring still presses while the blocks part keeps its spring
     (it stays closed) and drops the dashpot that would pull the blocks together."""

@@ -62,17 +62,19 @@ def test_a_dropped_block_slides_no_more_than_twice_its_free_flight(penalty: floa
     assert 0 < slide <= 2 * free_flight
 
 
-def test_toppling_rotation_converges_in_the_penalty() -> None:
+@pytest.mark.parametrize(("time_step", "k0"), [
+    (1e-4, 9e13), pytest.param(5e-5, 4e14, marks=pytest.mark.slow)])
+def test_toppling_rotation_converges_in_the_penalty(time_step: float, k0: float) -> None:
     """The paper's toppling example: T1's rotation at 0.3 s changes by < 2 % between the
-    scene's default penalty and 10× it at Δt 1e-4 s (19.33 and 19.23 mrad, 0.5 %). Not at
-    every Δt: 19.51 and 20.71 mrad at Δt 3e-4 (6.2 %; the runs part at 0.07 s, when T1's
-    base contacts switch between locked and sliding), 14.9 and 17.1 at the paper's 1e-3."""
+    scene's default penalty and 10× it at Δt 1e-4 s (20.71 and 20.78 mrad, 0.3 %) and 5e-5
+    (18.86 and 18.92, 0.3 %). Not at the longer steps: 22.81 and 21.18 at Δt 3e-4 (7.2 %),
+    14.69 and 19.77 at the paper's 1e-3 (34.5 %: the default penalty puts the contact
+    springs at ωΔt ≈ 4.5, where DDA's integrator damps most, and T1 under-rotates)."""
     built = build_model(EXAMPLES / "toppling.json")
     controls = dataclasses.replace(built.model.controls, penalty=None, duration=0.3,
-                                   time_step=1e-4, record_interval=1000)
+                                   time_step=time_step, record_interval=1000)
     built.model.controls = controls
-    k0 = default_penalty(built.model)
-    assert k0 == pytest.approx(9e13)  # 10 × 2 × 46.8 t / (1e-4 s)², one figure
+    assert default_penalty(built.model) == pytest.approx(k0)  # 10 × 2 × 46.8 t / Δt², 1 fig.
     rotations = []
     for k in (k0, 10 * k0):
         built.model.controls = dataclasses.replace(controls, penalty=k)
@@ -89,9 +91,12 @@ def test_jointed_slope_runs_two_seconds_without_creating_energy() -> None:
     """The user-style 30 m jointed slope (examples/jointed_slope.json, penalty 5e10 as the
     user chose it): 2 s complete, the energy balance within 1 % of gravity's work and no
     block faster than twice the free-fall speed of the deepest drop in the slope (what an
-    impact of a heavy block on a light one can give). Measured: completed in 2003 steps,
-    balance −0.8 % (dissipation not accounted, never created), fastest block 7.2 m/s; before
-    this issue slivers were shot out at 28 m/s at t ≈ 0."""
+    impact of a heavy block on a light one can give). Measured: completed in 2000 steps,
+    balance −2.6e-6 of gravity's work, fastest block 0.48 × that bound; the springs' energy
+    lost between steps (contacts re-detected shallower or not at all, as blocks land) is
+    1.5 % of gravity's work, booked as numerical dissipation (it was the whole balance
+    residual, −0.86 % before the friction-limit anchors, −1.5 % with them, while unbooked);
+    before this issue slivers were shot out at 28 m/s at t ≈ 0."""
     from benchmarks.trust import slope_checks
 
     built = build_model(EXAMPLES / "jointed_slope.json")
@@ -99,5 +104,6 @@ def test_jointed_slope_runs_two_seconds_without_creating_energy() -> None:
     res = run(built.model, recorder=log)
     assert res.status == STATUS_COMPLETED, res.message
     worst, balance, work = slope_checks(log.frames)
-    assert abs(balance) <= 0.01 * work
+    assert abs(balance) <= 1e-4 * work
+    assert 0 < res.summary["reseat_dissipation"] <= 0.03 * work
     assert worst <= 1.0 + 1e-6
