@@ -184,7 +184,8 @@ def _scene_section(scene: dict[str, Any]) -> str:
 _LABELS = {"steps": "solver steps", "simulated_time": "simulated time (s)",
            "wall_time": "wall time (s)", "penalty": "contact penalty (N/m)",
            "max_penetration": "largest penetration (m)", "time_step_cuts": "time step cuts",
-           "relaxed_contacts": "relaxed contacts"}
+           "relaxed_contacts": "relaxed contacts",
+           "reseat_dissipation": "springs' energy lost re-seating contacts (J)"}
 
 
 def _blocks_section(summary: dict[str, Any], meta: dict[str, Any]) -> str:
@@ -379,7 +380,7 @@ def report_html(job: JobRecord, root: str, job_dir: Path, scene_text: str,
     s.append("<h2>Scene</h2>" + _scene_section(scene))
     if summary:
         keys = ("status", "message", "steps", "simulated_time", "wall_time", "penalty",
-                "max_penetration", "time_step_cuts", "relaxed_contacts")
+                "max_penetration", "time_step_cuts", "relaxed_contacts", "reseat_dissipation")
         fixed = result_meta.get("fixed") or []
         counts = (f"{len(summary.get('blocks') or [])} blocks"
                   + (f", {sum(map(bool, fixed))} fixed" if fixed else ""))
