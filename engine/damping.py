@@ -166,10 +166,11 @@ def damp_contacts(system: BlockSystem, before: State, res: StepResult, after: St
     # a shear ring is damped toward the step's mean slip rate, not to rest: a contact whose
     # slip rings about a drift (a column starting to topple, a toe starting to slip) keeps
     # it; where that would add kinetic energy, the rings are damped to rest instead
+    kinetic0 = kinetic_energy(v0, mass)
     v = dash.velocities(np.where(ring_t[rings, None], res.slip[closed][rings] / dt, 0.0))
-    if kinetic_energy(v, mass) > kinetic_energy(v0, mass):
+    if kinetic_energy(v, mass) > kinetic0:
         v = dash.velocities(np.zeros((len(rings), 3)))
-    removed = kinetic_energy(v0, mass) - kinetic_energy(v, mass)
+    removed = kinetic0 - kinetic_energy(v, mass)
     after.velocity = v
     after.energies["damping_dissipation"] += float(removed)
     return after

@@ -193,8 +193,6 @@ class _LinearSystem:
         self.system, self.kb, self.t, self.dt = system, kb, t, dt
         #: two-point springs between free blocks that are not contacts (rock bolts)
         self.links = links
-        #: stiffness of each contact's shear spring (N/m)
-        self.ks = np.full(len(t.bi), system.ks)
         self.plan: asm.SystemPlan | None = None
         self.solver = None
         self.key: tuple[bytes, bytes] | None = None
@@ -209,7 +207,7 @@ class _LinearSystem:
         if self.solver is not None and key == self.key:
             return False
         s, t = self.system, self.t
-        kn, ks = (s.kn + cn / self.dt) * closed, self.ks * locked
+        kn, ks = (s.kn + cn / self.dt) * closed, s.ks * locked
         if self.links is None:
             if self.plan is None:
                 self.plan = asm.plan_system(s.block_row, self.kb, t.bi, t.bj, t.ti, t.tj,
@@ -350,7 +348,7 @@ def lock_reversed_sliders(system: BlockSystem, t: _Terms, m: _Modes, cyc: _Cycle
 ANCHOR_QUIET_CYCLES = 2 * FRICTION_ITERATIONS_PER_CHANGE
 
 
-def slide_dragged_anchors(system: BlockSystem, t: _Terms, m: _Modes, cyc: _Cycle) -> bool:
+def slide_dragged_anchors(t: _Terms, m: _Modes, cyc: _Cycle) -> bool:
     """Capped locked contacts whose anchors still slide after ANCHOR_QUIET_CYCLES quiet
     cycles are sliding, not at their friction limit: set them sliding along their shear
     force for the rest of the step and iterate on (True)."""
@@ -430,7 +428,7 @@ def open_close_iteration(system: BlockSystem, state: State, contacts: ContactSet
         m.fric_prev = cyc.fric
         m.mode, m.tangent, m.nstar = cyc.mode, cyc.tangent, cyc.nstar
         m.steady = 0 if cyc.changed else m.steady + 1
-        if slide_dragged_anchors(system, t, m, cyc):
+        if slide_dragged_anchors(t, m, cyc):
             continue
         if not _settled(m, cyc, was_sliding):
             continue
