@@ -187,3 +187,155 @@ def cholesky_solve(low: np.ndarray, f: np.ndarray) -> np.ndarray:
     x = f.copy()
     _solve_factored(low, x)
     return x
+
+
+@nb.njit(cache=True, parallel=True)
+def _bsr_matvec_par(indptr: np.ndarray, indices: np.ndarray, data: np.ndarray,
+                    rows: np.ndarray, x: np.ndarray, y: np.ndarray) -> None:
+    """:func:`_bsr_matvec` with the block rows shared among the threads."""
+    b = data.shape[1]
+    for q in nb.prange(len(rows)):
+        r = rows[q]
+        r0 = r * b
+        for i in range(b):
+            y[r0 + i] = 0.0
+        for p in range(indptr[r], indptr[r + 1]):
+            c0 = indices[p] * b
+            for i in range(b):
+                s = 0.0
+                for j in range(b):
+                    s += data[p, i, j] * x[c0 + j]
+                y[r0 + i] += s
+
+
+#: the parallel CG's sums run over this many fixed slices of the rows, added in order: the
+#: same answer whatever the number of threads (digests equal on every machine)
+_SLICES = 64
+
+
+@nb.njit(cache=True)
+def _slice(q: int, nr: int) -> tuple[int, int]:
+    """Rows `[lo, hi)` of slice `q` of `nr` rows."""
+    return q * nr // _SLICES, (q + 1) * nr // _SLICES
+
+
+@nb.njit(cache=True)
+def _in_order(part: np.ndarray) -> float:
+    """The slices' partial sums added in order."""
+    s = 0.0
+    for q in range(len(part)):
+        s += part[q]
+    return s
+
+
+@nb.njit(cache=True, parallel=True)
+def _precondition_par(inv: np.ndarray, rows: np.ndarray, r: np.ndarray,
+                      z: np.ndarray) -> float:
+    """z = M⁻¹ r on the block rows `rows` (:func:`_block_apply`), shared among the
+    threads; returns r · z over those rows."""
+    b = inv.shape[1]
+    part = np.zeros(_SLICES)
+    for q in nb.prange(_SLICES):
+        lo, hi = _slice(q, len(rows))
+        rz = 0.0
+        for t in range(lo, hi):
+            k = rows[t]
+            k0 = k * b
+            for i in range(b):
+                s = 0.0
+                for j in range(b):
+                    s += inv[k, i, j] * r[k0 + j]
+                z[k0 + i] = s
+                rz += r[k0 + i] * s
+        part[q] = rz
+    return _in_order(part)
+
+
+@nb.njit(cache=True, parallel=True)
+def _dot_par(rows: np.ndarray, b: int, u: np.ndarray, v: np.ndarray) -> float:
+    """u · v over the block rows `rows`, shared among the threads."""
+    part = np.zeros(_SLICES)
+    for q in nb.prange(_SLICES):
+        lo, hi = _slice(q, len(rows))
+        s = 0.0
+        for t in range(lo, hi):
+            k0 = rows[t] * b
+            for i in range(k0, k0 + b):
+                s += u[i] * v[i]
+        part[q] = s
+    return _in_order(part)
+
+
+@nb.njit(cache=True, parallel=True)
+def _cg_update_par(rows: np.ndarray, b: int, alpha: float, x: np.ndarray, r: np.ndarray,
+                   p: np.ndarray, q: np.ndarray) -> float:
+    """x += α p, r −= α q on the block rows `rows`; returns r · r."""
+    part = np.zeros(_SLICES)
+    for c in nb.prange(_SLICES):
+        lo, hi = _slice(c, len(rows))
+        rn = 0.0
+        for t in range(lo, hi):
+            k0 = rows[t] * b
+            for i in range(k0, k0 + b):
+                x[i] += alpha * p[i]
+                r[i] -= alpha * q[i]
+                rn += r[i] * r[i]
+        part[c] = rn
+    return _in_order(part)
+
+
+@nb.njit(cache=True, parallel=True)
+def _direction_par(rows: np.ndarray, b: int, beta: float, z: np.ndarray,
+                   p: np.ndarray) -> None:
+    """p = z + β p on the block rows `rows`."""
+    for t in nb.prange(len(rows)):
+        k0 = rows[t] * b
+        for i in range(k0, k0 + b):
+            p[i] = z[i] + beta * p[i]
+
+
+@nb.njit(cache=True)
+def pcg_bsr_parallel(indptr: np.ndarray, indices: np.ndarray, data: np.ndarray,
+                     inv: np.ndarray, coupled: np.ndarray, f: np.ndarray, x0: np.ndarray,
+                     rtol: float, maxiter: int) -> tuple[np.ndarray, int]:
+    """:func:`pcg_bsr` with its products, preconditioner and dots shared among numba's
+    threads (for systems large enough to pay the threads' start-up)."""
+    n = f.shape[0]
+    m, b, _ = inv.shape
+    x = x0.copy()
+    is_coupled = np.zeros(m, dtype=np.bool_)
+    for k in coupled:
+        is_coupled[k] = True
+    _block_apply(inv, np.flatnonzero(~is_coupled), f, x)
+    fn = 0.0
+    for i in range(n):
+        fn += f[i] * f[i]
+    stop = rtol * np.sqrt(fn)
+    if len(coupled) == 0:
+        return x, 0
+    r = np.zeros(n)
+    q = np.zeros(n)
+    z = np.zeros(n)
+    p = np.zeros(n)
+    _bsr_matvec_par(indptr, indices, data, coupled, x, q)
+    for k in coupled:
+        for i in range(k * b, k * b + b):
+            r[i] = f[i] - q[i]
+    if np.sqrt(_dot_par(coupled, b, r, r)) <= stop:
+        return x, 0
+    rz = _precondition_par(inv, coupled, r, z)
+    for k in coupled:
+        for i in range(k * b, k * b + b):
+            p[i] = z[i]
+    for it in range(1, maxiter + 1):
+        _bsr_matvec_par(indptr, indices, data, coupled, p, q)
+        alpha = rz / _dot_par(coupled, b, p, q)
+        rn = _cg_update_par(coupled, b, alpha, x, r, p, q)
+        if not np.isfinite(rn):
+            return x, -1
+        if np.sqrt(rn) <= stop:
+            return x, it
+        rz_new = _precondition_par(inv, coupled, r, z)
+        _direction_par(coupled, b, rz_new / rz, z, p)
+        rz = rz_new
+    return x, -1

@@ -14,7 +14,13 @@ import scipy.linalg as sla
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
-from engine._solver_kernels import cholesky, cholesky_solve, invert_spd_blocks, pcg_bsr
+from engine._solver_kernels import (
+    cholesky,
+    cholesky_solve,
+    invert_spd_blocks,
+    pcg_bsr,
+    pcg_bsr_parallel,
+)
 
 #: systems with more unknowns use conjugate gradients. Measured on real DDA systems
 #: (`python benchmarks/bench_solver.py`, cubes in contact, 2 cores): SuperLU 12.7 ms vs
@@ -22,6 +28,10 @@ from engine._solver_kernels import cholesky, cholesky_solve, invert_spd_blocks, 
 #: friction cycles of an open-close iteration, so direct pays off only for small systems
 DIRECT_SOLVE_MAX_UNKNOWNS = 300
 CG_RTOL = 1e-12
+#: CG shares its products among numba's threads from this many coupled block rows on:
+#: 1.55x faster on 2 cores at 130 rows (the 3 m jointed cube), 1.65x at 726 (1.5 m), same
+#: iterations, answers equal to 1e-12 (`python benchmarks/bench_solver.py --threads`)
+PARALLEL_CG_MIN_ROWS = 64
 
 
 class SolveError(RuntimeError):
@@ -164,5 +174,6 @@ def pcg(k: sp.bsr_matrix, f: np.ndarray, m_inv: np.ndarray, x0: np.ndarray | Non
     f = np.ascontiguousarray(f, dtype=np.float64)
     x = np.zeros_like(f) if x0 is None else np.ascontiguousarray(x0, dtype=np.float64)
     rows = coupled_rows(k) if coupled is None else coupled
-    return pcg_bsr(k.indptr, k.indices, np.ascontiguousarray(k.data, dtype=np.float64),
+    kernel = pcg_bsr_parallel if len(rows) >= PARALLEL_CG_MIN_ROWS else pcg_bsr
+    return kernel(k.indptr, k.indices, np.ascontiguousarray(k.data, dtype=np.float64),
                    m_inv, rows, f, x, rtol, maxiter)
