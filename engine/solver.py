@@ -30,7 +30,7 @@ DIRECT_SOLVE_MAX_UNKNOWNS = 300
 CG_RTOL = 1e-12
 #: CG shares its products among numba's threads from this many coupled block rows on:
 #: 1.55x faster on 2 cores at 130 rows (the 3 m jointed cube), 1.65x at 726 (1.5 m), same
-#: iterations, answers equal to 1e-12 (`python benchmarks/bench_solver.py --threads`)
+#: iterations, answers equal to 1e-12 (`python -m benchmarks.bench_threads`)
 PARALLEL_CG_MIN_ROWS = 64
 
 
