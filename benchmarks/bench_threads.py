@@ -1,16 +1,14 @@
-"""Both cores on a rock mass: serial against threaded kernels, on the jointed cube's own work.
+"""A rock mass's K and contact detection: filled afresh against updated, one thread against two.
 
 The first steps of the jointed cube (`benchmarks.timestep.jointed_cube`, sets at SPACING m)
-are run once while every conjugate-gradient solve and every K the open-close iteration
-builds is recorded; then, in one run:
+are run once while every K the open-close iteration builds is recorded; then, in one run:
 
-- CG: the serial compiled kernel against the threaded one (numba's threads, sums over
-  fixed slices) on exactly the recorded systems;
 - K: every recorded K filled afresh against updated from the one before (only the
   contacts whose stiffness changed);
 - detection: the narrow phase in one piece against in slices on threads.
 
-Answers are compared (relative difference of the CG solutions; K data; the contact sets).
+Answers are compared (K data; the contact sets). The threaded CG that was measured beside
+them is on branch `parallel-cg` (benchmarks/TIMESTEP-FINDINGS.md says why it is not used).
 Run: `python -m benchmarks.bench_threads [SPACING] [STEPS]` (default 1.5 m, 3 steps).
 """
 
@@ -26,40 +24,29 @@ import numpy as np
 
 import engine.assembly as asm
 import engine.detection as det
-import engine.solver as es
 from benchmarks.timestep import jointed_cube
 from engine._assembly_kernels import fill_bsr
-from engine._solver_kernels import pcg_bsr, pcg_bsr_parallel
 from engine.contact_step import detect
 from engine.simulation import Simulation
 
 
-def _record(spacing: float, steps: int) -> tuple[Simulation, list[tuple], list[tuple]]:
-    """Step the cube, keeping every CG system `(indptr, indices, data, inv, rows, f, x0)`
-    and every K request `(plan, kn, ks)`."""
-    solves: list[tuple] = []
+def _record(spacing: float, steps: int) -> tuple[Simulation, list[tuple]]:
+    """Step the cube, keeping every K request `(plan, kn, ks)`."""
     fills: list[tuple] = []
-    pcg, matrix = es.pcg, asm.SystemPlan.matrix
-
-    def recording_pcg(k, f, m_inv, x0, rtol, maxiter, coupled=None):  # noqa: ANN001, ANN202
-        rows = es.coupled_rows(k) if coupled is None else coupled
-        x0 = np.zeros_like(f) if x0 is None else np.ascontiguousarray(x0)
-        solves.append((k.indptr, k.indices, np.ascontiguousarray(k.data), m_inv, rows,
-                       np.ascontiguousarray(f), x0.copy()))
-        return pcg(k, f, m_inv, x0, rtol, maxiter, coupled)
+    matrix = asm.SystemPlan.matrix
 
     def recording_matrix(plan, kn, ks):  # noqa: ANN001, ANN202
         fills.append((plan, np.array(kn, dtype=float), np.array(ks, dtype=float)))
         return matrix(plan, kn, ks)
 
-    es.pcg, asm.SystemPlan.matrix = recording_pcg, recording_matrix
+    asm.SystemPlan.matrix = recording_matrix
     try:
         sim = Simulation(jointed_cube(spacing))
         for _ in range(steps):
             sim.step()
     finally:
-        es.pcg, asm.SystemPlan.matrix = pcg, matrix
-    return sim, solves, fills
+        asm.SystemPlan.matrix = matrix
+    return sim, fills
 
 
 def _time(fn, repeat: int = 2) -> float:  # noqa: ANN001
@@ -70,19 +57,6 @@ def _time(fn, repeat: int = 2) -> float:  # noqa: ANN001
         fn()
         best = min(best, time.perf_counter() - t0)
     return best
-
-
-def _cg(solves: list[tuple]) -> None:
-    serial = [pcg_bsr(*s, es.CG_RTOL, 100000) for s in solves]
-    threaded = [pcg_bsr_parallel(*s, es.CG_RTOL, 100000) for s in solves]
-    diff = max(float(np.abs(a[0] - b[0]).max() / max(np.abs(a[0]).max(), 1e-300))
-               for a, b in zip(serial, threaded, strict=True))
-    t_s = _time(lambda: [pcg_bsr(*s, es.CG_RTOL, 100000) for s in solves])
-    t_p = _time(lambda: [pcg_bsr_parallel(*s, es.CG_RTOL, 100000) for s in solves])
-    its = sum(r[1] for r in serial)
-    print(f"CG, {len(solves)} solves ({its} iterations, {len(solves[0][5])} unknowns): "
-          f"serial {t_s:.3f} s, threaded {t_p:.3f} s, x{t_s / t_p:.2f}; "
-          f"largest relative difference {diff:.1e}")
 
 
 def _fills(fills: list[tuple]) -> None:
@@ -133,10 +107,9 @@ def main() -> None:
     warnings.simplefilter("ignore")
     spacing = float(sys.argv[1]) if len(sys.argv) > 1 else 1.5
     steps = int(sys.argv[2]) if len(sys.argv) > 2 else 3
-    sim, solves, fills = _record(spacing, steps)
+    sim, fills = _record(spacing, steps)
     print(f"jointed cube, sets at {spacing} m, {sim.system.n} blocks, first {steps} steps; "
-          f"numba threads {numba.get_num_threads()} ({numba.threading_layer()})")
-    _cg(solves)
+          f"threads {numba.get_num_threads()}")
     _fills(fills)
     _detection(sim)
 

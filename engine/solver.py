@@ -14,13 +14,7 @@ import scipy.linalg as sla
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
-from engine._solver_kernels import (
-    cholesky,
-    cholesky_solve,
-    invert_spd_blocks,
-    pcg_bsr,
-    pcg_bsr_parallel,
-)
+from engine._solver_kernels import cholesky, cholesky_solve, invert_spd_blocks, pcg_bsr
 
 #: systems with more unknowns use conjugate gradients. Measured on real DDA systems
 #: (`python benchmarks/bench_solver.py`, cubes in contact, 2 cores): SuperLU 12.7 ms vs
@@ -28,12 +22,6 @@ from engine._solver_kernels import (
 #: friction cycles of an open-close iteration, so direct pays off only for small systems
 DIRECT_SOLVE_MAX_UNKNOWNS = 300
 CG_RTOL = 1e-12
-#: CG shares its products among numba's threads from this many nonzero blocks in its
-#: coupled rows on: 1.74x faster on 2 free cores on the 1.5 m jointed cube (726 rows, 14,474
-#: blocks), same iterations, answers equal to 1e-12 (`python -m benchmarks.bench_threads`);
-#: 5-15x slower on a landing pile's ~110 rows of a few blocks each, where the threads'
-#: hand-offs (5 per iteration) cost more than the rows' arithmetic
-PARALLEL_CG_MIN_BLOCKS = 8000
 
 
 class SolveError(RuntimeError):
@@ -176,7 +164,5 @@ def pcg(k: sp.bsr_matrix, f: np.ndarray, m_inv: np.ndarray, x0: np.ndarray | Non
     f = np.ascontiguousarray(f, dtype=np.float64)
     x = np.zeros_like(f) if x0 is None else np.ascontiguousarray(x0, dtype=np.float64)
     rows = coupled_rows(k) if coupled is None else coupled
-    work = int(np.diff(k.indptr)[rows].sum())
-    kernel = pcg_bsr_parallel if work >= PARALLEL_CG_MIN_BLOCKS else pcg_bsr
-    return kernel(k.indptr, k.indices, np.ascontiguousarray(k.data, dtype=np.float64),
+    return pcg_bsr(k.indptr, k.indices, np.ascontiguousarray(k.data, dtype=np.float64),
                    m_inv, rows, f, x, rtol, maxiter)

@@ -66,8 +66,8 @@ class Settings(BaseSettings):
                               description="unfinished (accepted or running) jobs per client")
     worker_threads: int = Field(
         1, ge=1, description="OMP/BLAS and numba threads of a job process (2 lets one job "
-                             "use both cores of a 2-core machine: the rock-mass kernels "
-                             "share their work)")
+                             "detect a large rock mass's contacts on both cores of a "
+                             "2-core machine)")
     worker_nice: int = Field(5, ge=0, le=19, description="niceness of job processes")
     progress_interval: float = Field(0.25, gt=0, description="s between progress writes")
     cancel_grace: float = Field(1.0, ge=0,

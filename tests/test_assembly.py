@@ -165,32 +165,3 @@ def test_k_updated_from_the_last_equals_k_filled_afresh(
         np.testing.assert_allclose(k.toarray(), ref.toarray(), rtol=0, atol=1e-12)
     assert updates == 5  # every K after the first was an update
 
-
-def test_threaded_cg_matches_the_serial_kernel_whatever_the_threads(
-        monkeypatch: pytest.MonkeyPatch) -> None:
-    """The threaded CG sums over fixed slices: the same iterates with one thread as with
-    two, and the serial kernel's answer to round-off."""
-    import numba
-
-    from engine._solver_kernels import pcg_bsr, pcg_bsr_parallel
-
-    rng = np.random.default_rng(23)
-    args = _random_contacts(rng, n=200, c=1500)
-    monkeypatch.setattr(asm, "DENSE_MAX_UNKNOWNS", 0)
-    k, kdiag = asm.plan_system(*args).matrix(np.full(1500, 3.0), np.full(1500, 1.5))
-    rows = coupled_rows(k)
-    f = rng.normal(size=k.shape[0])
-    call = (k.indptr, k.indices, k.data, block_jacobi(kdiag), rows, f, np.zeros_like(f),
-            1e-12, 10000)
-    serial, its = pcg_bsr(*call)
-    answers = []
-    threads = numba.get_num_threads()
-    try:
-        for n in sorted({1, threads}):
-            numba.set_num_threads(n)
-            answers.append(pcg_bsr_parallel(*call))
-    finally:
-        numba.set_num_threads(threads)
-    assert all(np.array_equal(a[0], answers[0][0]) and a[1] == its for a in answers)
-    np.testing.assert_allclose(answers[0][0], serial, rtol=1e-9, atol=1e-12)
-    np.testing.assert_allclose(k @ answers[0][0], f, atol=1e-9 * np.linalg.norm(f))
