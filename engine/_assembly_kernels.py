@@ -145,6 +145,30 @@ def fill_bsr(base: np.ndarray, unit: np.ndarray, slot_ii: np.ndarray, slot_jj: n
 
 
 @nb.njit(cache=True)
+def update_bsr(data: np.ndarray, unit: np.ndarray, slot_ii: np.ndarray,
+               slot_jj: np.ndarray, slot_ij: np.ndarray, slot_ji: np.ndarray,
+               changed: np.ndarray, dkn: np.ndarray, dks: np.ndarray) -> None:
+    """Add to the BSR data `data` (in place) the terms of :func:`fill_bsr` of the
+    contacts `changed (r,)` for their stiffness changes `dkn`, `dks (r,)`: K of the next
+    open-close cycle from the last one when a few contacts change mode."""
+    d = data.shape[1]
+    for t in range(len(changed)):
+        k = changed[t]
+        wn, ws = dkn[t], dks[t]
+        si, sj, sij, sji = slot_ii[k], slot_jj[k], slot_ij[k], slot_ji[k]
+        for p in range(d):
+            for q in range(d):
+                if si >= 0:
+                    data[si, p, q] += wn * unit[k, 0, p, q] + ws * unit[k, 3, p, q]
+                if sj >= 0:
+                    data[sj, p, q] += wn * unit[k, 2, p, q] + ws * unit[k, 5, p, q]
+                if sij >= 0:
+                    v = wn * unit[k, 1, p, q] + ws * unit[k, 4, p, q]
+                    data[sij, p, q] += v
+                    data[sji, q, p] += v
+
+
+@nb.njit(cache=True)
 def coupled_block_rows(m: int, slot_ij: np.ndarray, fi: np.ndarray, fj: np.ndarray,
                        kn: np.ndarray, ks: np.ndarray) -> np.ndarray:
     """Block rows `(r,)` (sorted) that share a contact with nonzero stiffness with another

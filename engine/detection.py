@@ -19,9 +19,11 @@ Conventions: `block_i > block_j`; the normal points from block j into block i;
 from __future__ import annotations
 
 from collections.abc import Sequence
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from functools import cached_property
 
+import numba
 import numpy as np
 
 from engine import _detection_kernels as kern
@@ -29,6 +31,10 @@ from engine._detection_kernels import FEATURE_EDGE, FEATURE_FACE, FEATURE_VERTEX
 from engine.contacts import LOCKED, OPEN, ContactSet
 from engine.geometry import ConvexPiece, Polyhedron, edge_topology
 from engine.tolerances import DEFAULT_TOLERANCES, Tolerances
+
+#: piece pairs from which the narrow phase runs in slices on numba's threads (the kernel
+#: releases the GIL; rows are joined in pair order, so the contacts are the same)
+THREADED_MIN_PAIRS = 2048
 
 _I64 = np.int64
 
@@ -367,9 +373,28 @@ def detect_contacts(blocks: Sequence[Polyhedron], search_distance: float | np.nd
     if len(pairs) == 0:
         return ContactSet()
     pa, pb = kern.piece_pairs(pairs, s.piece_block, p_lo, p_hi, inflate)
-    ri, rf, cand = kern.narrow_phase(pa, pb, x, s.topology, geo, reach, snap,
-                                     float(np.sqrt(2.0 * parallel)), parallel, tol.entrance)
+    ri, rf, cand = _narrow_phase(pa, pb, x, s.topology, geo, reach, snap, parallel,
+                                 tol.entrance)
     return _to_contact_set(ri, rf, cand, snap, parallel, len(blocks))
+
+
+def _narrow_phase(pa: np.ndarray, pb: np.ndarray, x: np.ndarray, topo: kern.SceneTopology,
+                  geo: kern.SceneGeometry, reach: np.ndarray, snap: float, parallel: float,
+                  entrance: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """:func:`engine._detection_kernels.narrow_phase` of the piece pairs `pa`, `pb`, in
+    as many slices as numba has threads when there are enough pairs, joined in order."""
+    args = (x, topo, geo, reach, snap, float(np.sqrt(2.0 * parallel)), parallel, entrance)
+    threads = numba.get_num_threads()
+    if threads < 2 or len(pa) < THREADED_MIN_PAIRS:
+        return kern.narrow_phase(pa, pb, *args)
+    cuts = np.linspace(0, len(pa), threads + 1).astype(np.int64)
+    with ThreadPoolExecutor(threads) as pool:
+        parts = list(pool.map(lambda q: kern.narrow_phase(
+            pa[cuts[q]:cuts[q + 1]], pb[cuts[q]:cuts[q + 1]], *args), range(threads)))
+    for q, (ri, _, _) in enumerate(parts):
+        ri[:, kern.RI_PAIR] += cuts[q]
+    return (np.concatenate([p[0] for p in parts]), np.concatenate([p[1] for p in parts]),
+            np.concatenate([p[2] for p in parts]))
 
 
 def _to_contact_set(ri: np.ndarray, rf: np.ndarray, cand: np.ndarray, snap: float,

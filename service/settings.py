@@ -64,7 +64,10 @@ class Settings(BaseSettings):
                                 "long after its last beat")
     client_quota: int = Field(16, ge=1,
                               description="unfinished (accepted or running) jobs per client")
-    worker_threads: int = Field(1, ge=1, description="OMP/BLAS threads of a job process")
+    worker_threads: int = Field(
+        1, ge=1, description="OMP/BLAS and numba threads of a job process (2 lets one job "
+                             "detect a large rock mass's contacts on both cores of a "
+                             "2-core machine)")
     worker_nice: int = Field(5, ge=0, le=19, description="niceness of job processes")
     progress_interval: float = Field(0.25, gt=0, description="s between progress writes")
     cancel_grace: float = Field(1.0, ge=0,
@@ -105,4 +108,4 @@ class Settings(BaseSettings):
         """Environment a job process needs before numpy loads (thread counts)."""
         n = str(self.worker_threads)
         return {k: n for k in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS",
-                               "NUMEXPR_NUM_THREADS")} | {"MPLBACKEND": "Agg"}
+                               "NUMEXPR_NUM_THREADS", "NUMBA_NUM_THREADS")} | {"MPLBACKEND": "Agg"}

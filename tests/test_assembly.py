@@ -140,3 +140,28 @@ def test_block_jacobi_reinverts_only_changed_blocks() -> None:
     np.testing.assert_allclose(jac(diag2), np.linalg.inv(diag2), rtol=1e-10, atol=1e-12)
     np.testing.assert_allclose(jac(diag[:10]), np.linalg.inv(diag[:10]), rtol=1e-10,
                                atol=1e-12)
+
+
+def test_k_updated_from_the_last_equals_k_filled_afresh(
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    """A rock mass's open-close cycle changes a few of its contacts: K updated by their
+    terms alone is K filled afresh (to round-off), cycle after cycle."""
+    rng = np.random.default_rng(17)
+    args = _random_contacts(rng, n=80, c=800)
+    monkeypatch.setattr(asm, "DENSE_MAX_UNKNOWNS", 0)
+    monkeypatch.setattr(asm, "UPDATE_MIN_CONTACTS", 100)
+    plan, fresh = asm.plan_system(*args), asm.plan_system(*args)
+    kn, ks = np.full(800, 3.0), np.full(800, 1.5)
+    updates = 0
+    for _ in range(6):
+        flip = rng.random(800) < 0.05
+        kn = np.where(flip, 3.0 - kn, kn)
+        ks = np.where(flip & (kn > 0), 1.5 - ks, ks)
+        before = plan.last
+        k, _ = plan.matrix(kn, ks)
+        updates += before is not None and plan.last[2] is not before[2]
+        fresh.last = None
+        ref, _ = fresh.matrix(kn, ks)
+        np.testing.assert_allclose(k.toarray(), ref.toarray(), rtol=0, atol=1e-12)
+    assert updates == 5  # every K after the first was an update
+

@@ -796,3 +796,24 @@ def test_no_false_penetration_past_a_narrow_face():
         c = detect_contacts([thin, thick], search)
         check_invariants(c)
         assert len(c) and c.gap.min() > -1e-12, (search, c.gap.min())
+
+
+def test_narrow_phase_in_slices_finds_the_same_contacts(monkeypatch):
+    """On threads the narrow phase runs in slices of the piece pairs, joined in order: the
+    contact set is the one of a single pass, array for array."""
+    import dataclasses
+
+    import numba
+
+    import engine.detection as det
+
+    if numba.get_num_threads() < 2:
+        pytest.skip("one numba thread: the narrow phase never runs in slices")
+    blocks = jittered_boxes((4, 3, 2))
+    monkeypatch.setattr(det, "THREADED_MIN_PAIRS", 10**12)
+    whole = detect_contacts(blocks, 0.005)
+    monkeypatch.setattr(det, "THREADED_MIN_PAIRS", 0)
+    sliced = detect_contacts(blocks, 0.005)
+    assert len(whole) == 715
+    for f in dataclasses.fields(whole):
+        np.testing.assert_array_equal(getattr(sliced, f.name), getattr(whole, f.name))

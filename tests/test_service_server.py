@@ -109,12 +109,12 @@ def test_cancel_over_http_stops_the_process(tmp_path: Path) -> None:
         url = r.headers["Location"]
         wait_until(lambda: (c.get(url).json()["step"] or 0) >= 10, 60, "the run to go")
         pid = job_row(srv.data_dir, url.rsplit("/", 1)[1])["worker_pid"]
-        # the job process started with one OMP/BLAS thread (POLYDDA_WORKER_THREADS) and
-        # runs single-threaded, whatever the API process had loaded
+        # the job process started with one OMP/BLAS/numba thread (POLYDDA_WORKER_THREADS)
+        # and runs single-threaded, whatever the API process had loaded
         env = process_env(pid)
-        assert {k: env.get(k) for k in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS",
-                                        "MKL_NUM_THREADS")} == dict.fromkeys(
-            ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"), "1")
+        keys = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS",
+                "NUMBA_NUM_THREADS")
+        assert {k: env.get(k) for k in keys} == dict.fromkeys(keys, "1")
         assert process_threads(pid) == 1
         t0 = time.monotonic()
         doc = c.delete(url).json()
