@@ -109,7 +109,7 @@ def main() -> None:
     steps = int(sys.argv[2]) if len(sys.argv) > 2 else 3
     sim, fills = _record(spacing, steps)
     print(f"jointed cube, sets at {spacing} m, {sim.system.n} blocks, first {steps} steps; "
-          f"threads {numba.get_num_threads()}")
+          f"threads {numba.config.NUMBA_NUM_THREADS}")
     _fills(fills)
     _detection(sim)
 

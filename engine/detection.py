@@ -384,7 +384,7 @@ def _narrow_phase(pa: np.ndarray, pb: np.ndarray, x: np.ndarray, topo: kern.Scen
     """:func:`engine._detection_kernels.narrow_phase` of the piece pairs `pa`, `pb`, in
     as many slices as numba has threads when there are enough pairs, joined in order."""
     args = (x, topo, geo, reach, snap, float(np.sqrt(2.0 * parallel)), parallel, entrance)
-    threads = numba.get_num_threads()
+    threads = numba.config.NUMBA_NUM_THREADS
     if threads < 2 or len(pa) < THREADED_MIN_PAIRS:
         return kern.narrow_phase(pa, pb, *args)
     cuts = np.linspace(0, len(pa), threads + 1).astype(np.int64)

@@ -807,7 +807,7 @@ def test_narrow_phase_in_slices_finds_the_same_contacts(monkeypatch):
 
     import engine.detection as det
 
-    if numba.get_num_threads() < 2:
+    if numba.config.NUMBA_NUM_THREADS < 2:
         pytest.skip("one numba thread: the narrow phase never runs in slices")
     blocks = jittered_boxes((4, 3, 2))
     monkeypatch.setattr(det, "THREADED_MIN_PAIRS", 10**12)
