@@ -140,7 +140,6 @@ class SystemPlan:
         n = self.m * self.d
         return sp.bsr_matrix((data, self.indices, self.indptr), shape=(n, n)), dblk
 
-
     def _data(self, kn: np.ndarray, ks: np.ndarray) -> np.ndarray:
         """BSR data of K for `kn`, `ks`: the last K updated by the contacts whose
         stiffness changed when they are few (an open-close cycle changes tens of a rock
@@ -153,11 +152,11 @@ class SystemPlan:
                 update_bsr(data, self.unit, self.slot_ii, self.slot_jj, self.slot_ij,
                            self.slot_ji, changed, kn[changed] - last[0][changed],
                            ks[changed] - last[1][changed])
-                self.last = (kn, ks, data)
+                self.last = (kn.copy(), ks.copy(), data)
                 return data
         data = fill_bsr(self.base, self.unit, self.slot_ii, self.slot_jj, self.slot_ij,
                         self.slot_ji, kn, ks)
-        self.last = (kn, ks, data)
+        self.last = (kn.copy(), ks.copy(), data)
         return data
 
 

@@ -32,8 +32,9 @@ from engine.contacts import LOCKED, OPEN, ContactSet
 from engine.geometry import ConvexPiece, Polyhedron, edge_topology
 from engine.tolerances import DEFAULT_TOLERANCES, Tolerances
 
-#: piece pairs from which the narrow phase runs in slices on numba's threads (the kernel
-#: releases the GIL; rows are joined in pair order, so the contacts are the same)
+#: piece pairs from which the narrow phase runs in slices on threads, as many as numba is
+#: configured for (the kernel releases the GIL; rows are joined in pair order, so the
+#: contacts are the same)
 THREADED_MIN_PAIRS = 2048
 
 _I64 = np.int64
@@ -382,7 +383,9 @@ def _narrow_phase(pa: np.ndarray, pb: np.ndarray, x: np.ndarray, topo: kern.Scen
                   geo: kern.SceneGeometry, reach: np.ndarray, snap: float, parallel: float,
                   entrance: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """:func:`engine._detection_kernels.narrow_phase` of the piece pairs `pa`, `pb`, in
-    as many slices as numba has threads when there are enough pairs, joined in order."""
+    as many slices as numba's configured threads when there are enough pairs, joined in
+    order (`numba.get_num_threads()` would launch numba's threading layer, a thread of its
+    own under TBB or workqueue)."""
     args = (x, topo, geo, reach, snap, float(np.sqrt(2.0 * parallel)), parallel, entrance)
     threads = numba.config.NUMBA_NUM_THREADS
     if threads < 2 or len(pa) < THREADED_MIN_PAIRS:
