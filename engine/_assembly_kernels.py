@@ -124,23 +124,9 @@ def fill_bsr(base: np.ndarray, unit: np.ndarray, slot_ii: np.ndarray, slot_jj: n
     `kn·n_* + ks·s_*` of :func:`unit_contact_terms` on its blocks (the ji block gets the
     transpose of the ij term). Contacts with kn = ks = 0 (open) add nothing."""
     data = base.copy()
-    c = len(kn)
-    d = base.shape[1]
-    for k in range(c):
-        wn, ws = kn[k], ks[k]
-        if wn == 0.0 and ws == 0.0:
-            continue
-        si, sj, sij, sji = slot_ii[k], slot_jj[k], slot_ij[k], slot_ji[k]
-        for p in range(d):
-            for q in range(d):
-                if si >= 0:
-                    data[si, p, q] += wn * unit[k, 0, p, q] + ws * unit[k, 3, p, q]
-                if sj >= 0:
-                    data[sj, p, q] += wn * unit[k, 2, p, q] + ws * unit[k, 5, p, q]
-                if sij >= 0:
-                    v = wn * unit[k, 1, p, q] + ws * unit[k, 4, p, q]
-                    data[sij, p, q] += v
-                    data[sji, q, p] += v
+    acting = np.flatnonzero((kn != 0.0) | (ks != 0.0))
+    update_bsr(data, unit, slot_ii, slot_jj, slot_ij, slot_ji, acting, kn[acting],
+               ks[acting])
     return data
 
 
@@ -148,9 +134,11 @@ def fill_bsr(base: np.ndarray, unit: np.ndarray, slot_ii: np.ndarray, slot_jj: n
 def update_bsr(data: np.ndarray, unit: np.ndarray, slot_ii: np.ndarray,
                slot_jj: np.ndarray, slot_ij: np.ndarray, slot_ji: np.ndarray,
                changed: np.ndarray, dkn: np.ndarray, dks: np.ndarray) -> None:
-    """Add to the BSR data `data` (in place) the terms of :func:`fill_bsr` of the
-    contacts `changed (r,)` for their stiffness changes `dkn`, `dks (r,)`: K of the next
-    open-close cycle from the last one when a few contacts change mode."""
+    """Add to the BSR data `data` (in place) the terms `dkn·n_* + dks·s_*` of
+    :func:`unit_contact_terms` of the contacts `changed (r,)` on their blocks (the ji block
+    gets the transpose of the ij term): K filled from the block terms (:func:`fill_bsr`),
+    or the next open-close cycle's K from the last one by the stiffness changes `dkn`,
+    `dks (r,)` of the contacts that changed mode."""
     d = data.shape[1]
     for t in range(len(changed)):
         k = changed[t]
