@@ -61,13 +61,15 @@ def _time(fn, repeat: int = 2) -> float:  # noqa: ANN001
 
 def _fills(fills: list[tuple]) -> None:
     def fresh() -> list[np.ndarray]:
-        return [fill_bsr(p.base, p.unit, p.slot_ii, p.slot_jj, p.slot_ij, p.slot_ji, kn, ks)
-                for p, kn, ks in fills]
+        return [fill_bsr(p.base, p.ti, p.tj, p.normal, p.slot_ii, p.slot_jj, p.slot_ij,
+                         p.slot_ji, kn, ks) for p, kn, ks in fills]
 
-    def updated() -> list[np.ndarray]:
+    def updated(keep: bool = True) -> list[np.ndarray]:
         out = []
         for p, kn, ks in fills:
-            out.append(p._data(kn, ks))
+            data = p._data(kn, ks)
+            if keep:  # a copy: the plan's next update is in place
+                out.append(data.copy())
         return out
 
     for p, _, _ in fills:
@@ -79,7 +81,7 @@ def _fills(fills: list[tuple]) -> None:
     t_f = _time(fresh, 1)
     for p, _, _ in fills:
         p.last = None
-    t_u = _time(updated, 1)
+    t_u = _time(lambda: updated(False), 1)
     print(f"K, {len(fills)} matrices ({len(fills[0][1])} contacts): filled afresh "
           f"{t_f:.3f} s, updated from the last {t_u:.3f} s, x{t_f / t_u:.2f}; largest "
           f"relative difference {diff:.1e}")

@@ -36,6 +36,33 @@ def relative_displacement(x: np.ndarray, dof_map: np.ndarray, bi: np.ndarray,
 
 
 @nb.njit(cache=True)
+def _unit_terms_into(ti: np.ndarray, tj: np.ndarray, normal: np.ndarray, k: int,
+                     a: np.ndarray, b: np.ndarray, out: np.ndarray) -> None:
+    """Contact `k`'s unit-stiffness terms into `out (6, d, d)` (`a`, `b (d,)`: scratch):
+    :func:`unit_contact_terms` for one contact, computed where they are summed so that no
+    `(c, 6, d, d)` array is stored (224 MB at 5,000 blocks)."""
+    d = ti.shape[2]
+    n0, n1, n2 = normal[k, 0], normal[k, 1], normal[k, 2]
+    for p in range(d):
+        a[p] = n0 * ti[k, 0, p] + n1 * ti[k, 1, p] + n2 * ti[k, 2, p]
+        b[p] = n0 * tj[k, 0, p] + n1 * tj[k, 1, p] + n2 * tj[k, 2, p]
+    for p in range(d):
+        for q in range(d):
+            nii = a[p] * a[q]
+            nij = -a[p] * b[q]
+            njj = b[p] * b[q]
+            out[0, p, q] = nii
+            out[1, p, q] = nij
+            out[2, p, q] = njj
+            out[3, p, q] = (ti[k, 0, p] * ti[k, 0, q] + ti[k, 1, p] * ti[k, 1, q]
+                            + ti[k, 2, p] * ti[k, 2, q]) - nii
+            out[4, p, q] = -(ti[k, 0, p] * tj[k, 0, q] + ti[k, 1, p] * tj[k, 1, q]
+                             + ti[k, 2, p] * tj[k, 2, q]) - nij
+            out[5, p, q] = (tj[k, 0, p] * tj[k, 0, q] + tj[k, 1, p] * tj[k, 1, q]
+                            + tj[k, 2, p] * tj[k, 2, q]) - njj
+
+
+@nb.njit(cache=True)
 def unit_contact_terms(ti: np.ndarray, tj: np.ndarray, normal: np.ndarray) -> np.ndarray:
     """Unit-stiffness contact terms `(c, 6, d, d)`: `(n_ii, n_ij, n_jj, s_ii, s_ij, s_jj)`
     for kn = 1 (P = n nᵀ) and ks = 1 (P = I − n nᵀ) (paper eqs. 24, 29); `ti`, `tj (c, 3,
@@ -45,24 +72,7 @@ def unit_contact_terms(ti: np.ndarray, tj: np.ndarray, normal: np.ndarray) -> np
     a = np.empty(d)
     b = np.empty(d)
     for k in range(c):
-        n0, n1, n2 = normal[k, 0], normal[k, 1], normal[k, 2]
-        for p in range(d):
-            a[p] = n0 * ti[k, 0, p] + n1 * ti[k, 1, p] + n2 * ti[k, 2, p]
-            b[p] = n0 * tj[k, 0, p] + n1 * tj[k, 1, p] + n2 * tj[k, 2, p]
-        for p in range(d):
-            for q in range(d):
-                nii = a[p] * a[q]
-                nij = -a[p] * b[q]
-                njj = b[p] * b[q]
-                out[k, 0, p, q] = nii
-                out[k, 1, p, q] = nij
-                out[k, 2, p, q] = njj
-                out[k, 3, p, q] = (ti[k, 0, p] * ti[k, 0, q] + ti[k, 1, p] * ti[k, 1, q]
-                                   + ti[k, 2, p] * ti[k, 2, q]) - nii
-                out[k, 4, p, q] = -(ti[k, 0, p] * tj[k, 0, q] + ti[k, 1, p] * tj[k, 1, q]
-                                    + ti[k, 2, p] * tj[k, 2, q]) - nij
-                out[k, 5, p, q] = (tj[k, 0, p] * tj[k, 0, q] + tj[k, 1, p] * tj[k, 1, q]
-                                   + tj[k, 2, p] * tj[k, 2, q]) - njj
+        _unit_terms_into(ti, tj, normal, k, a, b, out[k])
     return out
 
 
@@ -117,41 +127,46 @@ def bsr_pattern(m: int, fi: np.ndarray, fj: np.ndarray
 
 
 @nb.njit(cache=True)
-def fill_bsr(base: np.ndarray, unit: np.ndarray, slot_ii: np.ndarray, slot_jj: np.ndarray,
-             slot_ij: np.ndarray, slot_ji: np.ndarray, kn: np.ndarray,
-             ks: np.ndarray) -> np.ndarray:
+def fill_bsr(base: np.ndarray, ti: np.ndarray, tj: np.ndarray, normal: np.ndarray,
+             slot_ii: np.ndarray, slot_jj: np.ndarray, slot_ij: np.ndarray,
+             slot_ji: np.ndarray, kn: np.ndarray, ks: np.ndarray) -> np.ndarray:
     """BSR data `(nnz, d, d)`: the block terms `base` plus every contact's
     `kn·n_* + ks·s_*` of :func:`unit_contact_terms` on its blocks (the ji block gets the
     transpose of the ij term). Contacts with kn = ks = 0 (open) add nothing."""
     data = base.copy()
     acting = np.flatnonzero((kn != 0.0) | (ks != 0.0))
-    update_bsr(data, unit, slot_ii, slot_jj, slot_ij, slot_ji, acting, kn[acting],
+    update_bsr(data, ti, tj, normal, slot_ii, slot_jj, slot_ij, slot_ji, acting, kn[acting],
                ks[acting])
     return data
 
 
 @nb.njit(cache=True)
-def update_bsr(data: np.ndarray, unit: np.ndarray, slot_ii: np.ndarray,
-               slot_jj: np.ndarray, slot_ij: np.ndarray, slot_ji: np.ndarray,
-               changed: np.ndarray, dkn: np.ndarray, dks: np.ndarray) -> None:
+def update_bsr(data: np.ndarray, ti: np.ndarray, tj: np.ndarray, normal: np.ndarray,
+               slot_ii: np.ndarray, slot_jj: np.ndarray, slot_ij: np.ndarray,
+               slot_ji: np.ndarray, changed: np.ndarray, dkn: np.ndarray,
+               dks: np.ndarray) -> None:
     """Add to the BSR data `data` (in place) the terms `dkn·n_* + dks·s_*` of
     :func:`unit_contact_terms` of the contacts `changed (r,)` on their blocks (the ji block
     gets the transpose of the ij term): K filled from the block terms (:func:`fill_bsr`),
     or the next open-close cycle's K from the last one by the stiffness changes `dkn`,
-    `dks (r,)` of the contacts that changed mode."""
+    `dks (r,)` of the contacts that changed mode. Contacts: `ti`, `tj (c, 3, d)`,
+    `normal (c, 3)`; their unit terms are computed here (:func:`_unit_terms_into`)."""
     d = data.shape[1]
+    a, b = np.empty(d), np.empty(d)
+    unit = np.empty((6, d, d))
     for t in range(len(changed)):
         k = changed[t]
         wn, ws = dkn[t], dks[t]
+        _unit_terms_into(ti, tj, normal, k, a, b, unit)
         si, sj, sij, sji = slot_ii[k], slot_jj[k], slot_ij[k], slot_ji[k]
         for p in range(d):
             for q in range(d):
                 if si >= 0:
-                    data[si, p, q] += wn * unit[k, 0, p, q] + ws * unit[k, 3, p, q]
+                    data[si, p, q] += wn * unit[0, p, q] + ws * unit[3, p, q]
                 if sj >= 0:
-                    data[sj, p, q] += wn * unit[k, 2, p, q] + ws * unit[k, 5, p, q]
+                    data[sj, p, q] += wn * unit[2, p, q] + ws * unit[5, p, q]
                 if sij >= 0:
-                    v = wn * unit[k, 1, p, q] + ws * unit[k, 4, p, q]
+                    v = wn * unit[1, p, q] + ws * unit[4, p, q]
                     data[sij, p, q] += v
                     data[sji, q, p] += v
 

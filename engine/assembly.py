@@ -20,7 +20,6 @@ from engine._assembly_kernels import (
     bsr_to_dense,
     coupled_block_rows,
     fill_bsr,
-    unit_contact_terms,
     update_bsr,
 )
 from engine._motion_kernels import T0, TA
@@ -101,9 +100,11 @@ class SystemPlan:
     """The global K of one step as a function of the contact modes.
 
     Everything that does not depend on which contacts are closed or locked (block terms,
-    unit contact terms, the block-sparse pattern and where each contact's terms land in
-    it) is computed once per step by :func:`plan_system`; each open-close cycle then only
-    re-weights and sums, in one compiled pass (:func:`fill_bsr`).
+    the block-sparse pattern and where each contact's terms land in it) is computed once
+    per step by :func:`plan_system`; each open-close cycle then only weights the contacts'
+    unit terms and sums them, in one compiled pass (:func:`fill_bsr`, or
+    :func:`update_bsr` over the contacts that changed). A matrix :meth:`matrix` returns is
+    valid until its next call, which may update it in place.
     """
 
     m: int
@@ -112,7 +113,9 @@ class SystemPlan:
     indptr: np.ndarray  # (m + 1,) BSR row pointers
     indices: np.ndarray  # (nnz,) BSR block columns
     diag_slot: np.ndarray  # (m,) the diagonal block of each block row
-    unit: np.ndarray  # (c, 6, d, d) unit contact terms (unit_contact_terms)
+    ti: np.ndarray  # (c, 3, d) contacts' displacement matrices on block i (contiguous)
+    tj: np.ndarray  # (c, 3, d) on block j
+    normal: np.ndarray  # (c, 3)
     fi: np.ndarray  # (c,) block row of block i of each contact (-1: fixed)
     fj: np.ndarray  # (c,) block row of block j
     slot_ii: np.ndarray  # (c,) BSR block of each contact term (-1: none)
@@ -141,21 +144,22 @@ class SystemPlan:
         return sp.bsr_matrix((data, self.indices, self.indptr), shape=(n, n)), dblk
 
     def _data(self, kn: np.ndarray, ks: np.ndarray) -> np.ndarray:
-        """BSR data of K for `kn`, `ks`: the last K updated by the contacts whose
-        stiffness changed when they are few (an open-close cycle changes tens of a rock
-        mass's thousands of contacts), else filled afresh."""
+        """BSR data of K for `kn`, `ks`: the last K updated in place by the contacts
+        whose stiffness changed when they are few (an open-close cycle changes tens of a
+        rock mass's thousands of contacts), else filled afresh. In place, not on a copy:
+        the copy of a 5,000-block K cost as much as the update."""
         last = self.last
         if last is not None and len(kn) >= UPDATE_MIN_CONTACTS:
             changed = np.flatnonzero((kn != last[0]) | (ks != last[1]))
             if len(changed) <= UPDATE_MAX_FRACTION * len(kn):
-                data = last[2].copy()
-                update_bsr(data, self.unit, self.slot_ii, self.slot_jj, self.slot_ij,
-                           self.slot_ji, changed, kn[changed] - last[0][changed],
-                           ks[changed] - last[1][changed])
+                data = last[2]
+                update_bsr(data, self.ti, self.tj, self.normal, self.slot_ii, self.slot_jj,
+                           self.slot_ij, self.slot_ji, changed,
+                           kn[changed] - last[0][changed], ks[changed] - last[1][changed])
                 self.last = (kn.copy(), ks.copy(), data)
                 return data
-        data = fill_bsr(self.base, self.unit, self.slot_ii, self.slot_jj, self.slot_ij,
-                        self.slot_ji, kn, ks)
+        data = fill_bsr(self.base, self.ti, self.tj, self.normal, self.slot_ii, self.slot_jj,
+                        self.slot_ij, self.slot_ji, kn, ks)
         self.last = (kn.copy(), ks.copy(), data)
         return data
 
@@ -182,10 +186,9 @@ def plan_system(
     indptr, indices, diag_slot, sii, sjj, sij, sji = bsr_pattern(m, fi, fj)
     base = np.zeros((len(indices), d, d))
     base[diag_slot] = diag[row_of >= 0]
-    unit = unit_contact_terms(np.ascontiguousarray(ti, dtype=np.float64),
-                              np.ascontiguousarray(tj, dtype=np.float64),
-                              np.ascontiguousarray(normal, dtype=np.float64))
     return SystemPlan(m=m, d=d, base=base, indptr=indptr, indices=indices,
-                      diag_slot=diag_slot, unit=unit, fi=fi, fj=fj, slot_ii=sii,
-                      slot_jj=sjj, slot_ij=sij, slot_ji=sji,
+                      diag_slot=diag_slot, ti=np.ascontiguousarray(ti, dtype=np.float64),
+                      tj=np.ascontiguousarray(tj, dtype=np.float64),
+                      normal=np.ascontiguousarray(normal, dtype=np.float64), fi=fi, fj=fj,
+                      slot_ii=sii, slot_jj=sjj, slot_ij=sij, slot_ji=sji,
                       dense=m * d <= DENSE_MAX_UNKNOWNS)
