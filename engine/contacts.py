@@ -68,6 +68,11 @@ class ContactSet:
     def __len__(self) -> int:
         return len(self.block_i)
 
+    def same_as(self, other: ContactSet) -> bool:
+        """Whether `other` holds exactly these constraints, array for array."""
+        return all(np.array_equal(getattr(self, f.name), getattr(other, f.name))
+                   for f in fields(self))
+
     def subset(self, index: np.ndarray) -> ContactSet:
         """The constraints selected by `index` (boolean mask or integer array)."""
         idx = np.arange(len(self))[index]

@@ -89,10 +89,13 @@ class Simulation:
         system, state = self.system, self.state
         attempt = stepping.first_attempt(system, state)
         contacts, areas = find_contacts(system, state, stepping.reach(system, state, attempt))
+        res = None
         while True:
             try:
-                start = initial_modes(system, state, contacts, attempt.dt)
-                res = open_close_iteration(system, state, contacts, areas, start, attempt.dt)
+                if res is None:
+                    start = initial_modes(system, state, contacts, attempt.dt)
+                    res = open_close_iteration(system, state, contacts, areas, start,
+                                               attempt.dt)
                 stepping.check(system, res, attempt)
                 clock = _time.perf_counter()
                 after = advance(system, state, res, attempt.dt)
@@ -100,10 +103,13 @@ class Simulation:
                 energy.check_step(system, state, after)
                 break
             except stepping.SearchWider:
-                contacts, areas = find_contacts(system, state,
-                                                stepping.reach(system, state, attempt))
+                wider, areas_wider = find_contacts(system, state,
+                                                   stepping.reach(system, state, attempt))
+                if not wider.same_as(contacts):  # the same contacts give the same step
+                    contacts, areas, res = wider, areas_wider, None
             except StepFailure as exc:
                 attempt = stepping.cut(system, state, attempt, exc)
+                res = None
         self.state = after
         self.state.dt, self.state.diagnostics.dt_reason = stepping.next_time_step(
             system, state, res, attempt.dt)

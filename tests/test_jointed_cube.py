@@ -71,3 +71,25 @@ def test_first_steps_keep_a_sensible_time_step(cube: object) -> None:
         sim.step()
     assert sim.state.last_dt >= 1e-5
     assert sim.state.diagnostics.max_penetration < 1e-3
+
+
+
+def test_a_rock_mass_at_rest_runs_at_the_asked_time_step() -> None:
+    """Issue 14: a cut rock mass that cannot slide (joints rougher than any of its planes
+    is steep, φ 85°) settles onto springs that start unstretched and runs at the asked Δt
+    throughout: every step is limited by the asked Δt alone, none is cut, and the blocks
+    come to rest (the cuts on moving rock masses come from their motion)."""
+    from benchmarks.pile import rock_mass_model
+    from engine.model import JointMaterial
+
+    model = rock_mass_model(2.5, dt=1e-3, duration=1.0)
+    model.joint_materials = [JointMaterial(np.radians(85.0))]
+    sim = Simulation(model)
+    assert (~sim.system.fixed).sum() > 60
+    for _ in range(80):
+        sim.step()
+    d = sim.state.diagnostics
+    assert d.cuts == {} and d.limited_by == {"asked": 80}
+    assert sim.state.time == pytest.approx(0.08)
+    speed = np.linalg.norm(sim.state.velocity[~sim.system.fixed, :3], axis=1)
+    assert np.median(speed) < 1e-4 and speed.max() < 1e-3  # from ~2e-3 m/s at 10 ms

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from engine import contact_step, stepping
+from engine import contact_step, simulation, stepping
 from engine.contacts import OPEN
 from engine.frame import energy_created
 from engine.model import (
@@ -493,7 +493,8 @@ def test_step_that_outruns_its_predicted_search_is_detected_again(
     """A cube thrown down onto a fixed slab with the search prediction made 1000× too
     small: each step that moves further than predicted is searched again, wider, at the
     same Δt, and the run ends exactly where runs searched at the model's full step limit
-    end (no contact lost, nothing tunnels)."""
+    end (no contact lost, nothing tunnels); a wider search that finds the contacts it
+    had does not solve the step again."""
     def model() -> Model:
         return Model(
             blocks=[Block(box([-2, -2, -1], [3, 3, 0]), "slab", fixed=True),
@@ -507,12 +508,22 @@ def test_step_that_outruns_its_predicted_search_is_detected_again(
     adaptive = Simulation(model())
     searches = _searches(monkeypatch, adaptive)
     fixed = Simulation(model(), adaptive_search=False)
+    runs: list[int] = []
+    iterate = simulation.open_close_iteration
+
+    def counted(system, *args):  # noqa: ANN001, ANN002, ANN202
+        runs.append(system is adaptive.system)
+        return iterate(system, *args)
+
+    monkeypatch.setattr(simulation, "open_close_iteration", counted)
     closed = 0
     while adaptive.state.time < 0.1 - 1e-12:
         res_a, res_f = adaptive.step(), fixed.step()
         np.testing.assert_allclose(res_a.d, res_f.d, rtol=1e-9, atol=1e-12)
         closed = max(closed, int(np.sum(res_a.contacts.mode != OPEN)))
     assert len(searches) > adaptive.state.step  # steps were searched again
+    # a wider search that found the same contacts kept the step it had (no second run)
+    assert adaptive.state.step <= sum(runs) < len(searches)
     # a block pair is searched within the sum of its blocks' reaches
     assert min(float(r.sum()) for r in searches[1:]) < 0.1 * fixed.system.search_distance
     assert closed == 4  # the cube hit the slab on its face
