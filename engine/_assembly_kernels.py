@@ -1,6 +1,7 @@
-"""Compiled per-contact kernels of the assembly and the open-close iteration: the unit
-contact terms and the block-sparse pattern of K (once per step), K's blocks for the modes of
-a cycle, and the relative displacement of the contact points from the solution.
+"""Compiled per-contact kernels of the assembly and the open-close iteration: the
+block-sparse pattern of K (once per step), K's blocks for the modes of a cycle (each
+contact's unit terms computed where they are summed), and the relative displacement of the
+contact points from the solution.
 
 Each open-close cycle runs several of them (~10 cycles per step); as numpy they were
 dozens of einsum / bincount / sparse calls per cycle. Compiled with numba (cached on disk).
