@@ -278,7 +278,8 @@ def _cycle(system: BlockSystem, state: State, t: _Terms, m: _Modes, lin: _Linear
     out = update_modes(t.d0, t.normal, dr, t.shear0, m.offset, m.mode, m.tangent, m.broken,
                        m.reopenings, m.switches, t.tan_phi, t.tension_force,
                        t.cohesion_force, fric_mag, m.fric_prev, system.kn, system.ks, m.cn,
-                       dt, system.open_close_gap, MAX_REOPENINGS, MAX_SHEAR_SWITCHES)
+                       dt, system.open_close_gap, system.gap_resolution, MAX_REOPENINGS,
+                       MAX_SHEAR_SWITCHES)
     clock = diag.tick("open_close", clock)
     return _Cycle(x, fric_mag, fric, dr, *out), clock
 
@@ -313,7 +314,7 @@ def release_held_contacts(system: BlockSystem, t: _Terms, m: _Modes, cyc: _Cycle
     allow_tension = np.where(m.broken, 0.0, t.tension_force)
     pull = np.minimum(cyc.fn, -system.kn * cyc.d1)  # the dashpot may not hold a gap shut
     held = (m.mode != OPEN) & (m.reopenings >= MAX_REOPENINGS) & (
-        pull < -allow_tension - system.kn * system.open_close_gap)
+        pull < -allow_tension - system.kn * (system.open_close_gap + system.gap_resolution))
     now = _rescue_once(m, held, m.released, OPEN, lambda count: StepFailure(
         f"open-close iteration did not settle: {count} contact(s) kept closing and opening",
         "held_contacts"))

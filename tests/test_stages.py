@@ -168,7 +168,7 @@ def test_update_modes_follows_table_2() -> None:
     z3, z = np.zeros((4, 3)), np.zeros(4)
     out = update_modes(d0, normal, dr, z3, z3.copy(), mode, tangent, np.zeros(4, bool),
                        np.zeros(4, np.int64), np.zeros(4, np.int64), np.full(4, 0.5), z, z,
-                       np.full(4, 5e3), z3, 1e9, 1e9, z.copy(), 1e-3, 1e-7, 2, 2)
+                       np.full(4, 5e3), z3, 1e9, 1e9, z.copy(), 1e-3, 1e-7, 0.0, 2, 2)
     new_mode, nstar, d1, fn, changed = out[0], out[2], out[3], out[6], out[7]
     assert list(new_mode) == [OPEN, SLIDING, LOCKED, LOCKED]
     np.testing.assert_allclose(d1, d0 + dr[:, 2])
@@ -189,7 +189,7 @@ def test_a_contact_past_the_switch_cap_is_held_at_its_friction_limit() -> None:
     out = update_modes(d0, normal, dr, z3, offset, np.array([LOCKED], np.int8),
                        np.array([[1.0, 0, 0]]), np.zeros(1, bool), np.zeros(1, np.int64),
                        np.full(1, 2, np.int64), np.full(1, 0.5), z, z, z.copy(), z3, 1e9,
-                       1e9, z.copy(), 1e-3, 0.0, 2, 2)
+                       1e9, z.copy(), 1e-3, 0.0, 0.0, 2, 2)
     assert out[0][0] == LOCKED
     stretch = offset[0] + dr[0]  # N = 1e9 × 1e-5 = 1e4 N, friction 5e3 N
     assert 1e9 * stretch[0] == pytest.approx(5e3)
@@ -222,7 +222,7 @@ def test_a_parting_contact_loses_its_dashpot_not_its_spring() -> None:
     out = update_modes(d0, normal, dr, z3, z3.copy(), np.array([LOCKED], np.int8),
                        np.array([[1.0, 0, 0]]), np.zeros(1, bool), np.zeros(1, np.int64),
                        np.zeros(1, np.int64), np.full(1, 0.5), z, z, z.copy(), z3, 1e9, 1e9,
-                       cn, 1e-3, 0.0, 2, 2)
+                       cn, 1e-3, 0.0, 0.0, 2, 2)
     assert out[0][0] == LOCKED
     assert cn[0] == 0.0
     assert out[6][0] == pytest.approx(1e9 * 1e-5)
