@@ -178,6 +178,27 @@ def test_update_modes_follows_table_2() -> None:
     assert changed
 
 
+def test_exactly_touching_faces_do_not_flip_on_round_off() -> None:
+    """Cut faces touch exactly (gap 0.0) and carry no force: a solve's round-off (1e-20 m)
+    neither opens the closed one nor closes the open one when the gap resolution covers it,
+    and does without it; beyond the resolution both flip as Table 2 says."""
+    normal = np.tile([0.0, 0.0, 1.0], (2, 1))
+    d0 = np.zeros(2)
+    z3, z = np.zeros((2, 3)), np.zeros(2)
+
+    def modes(dn: float, resolution: float) -> list[int]:
+        dr = np.array([[0, 0, dn], [0, 0, -dn]])
+        out = update_modes(d0, normal, dr, z3, z3.copy(), np.array([LOCKED, OPEN], np.int8),
+                           np.zeros((2, 3)), np.ones(2, bool), np.zeros(2, np.int64),
+                           np.zeros(2, np.int64), np.full(2, 0.5), z, z, z.copy(), z3, 1e9,
+                           1e9, z.copy(), 1e-3, 0.0, resolution, 2, 2)
+        return list(out[0])
+
+    assert modes(1e-20, 1e-11) == [LOCKED, OPEN]
+    assert modes(1e-20, 0.0) == [OPEN, LOCKED]
+    assert modes(1e-9, 1e-11) == [OPEN, LOCKED]
+
+
 def test_a_contact_past_the_switch_cap_is_held_at_its_friction_limit() -> None:
     """A locked contact that has used its locked <-> sliding switches and is sheared past
     friction stays locked; its spring's anchor slides back so that ks × stretch is tan φ N
