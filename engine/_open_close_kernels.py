@@ -80,7 +80,7 @@ def update_modes(d0: np.ndarray, normal: np.ndarray, dr: np.ndarray, shear0: np.
                  tan_phi: np.ndarray, tension_force: np.ndarray,
                  cohesion_force: np.ndarray, fric_mag: np.ndarray, fric_prev: np.ndarray,
                  kn: float, ks: float, cn: np.ndarray, dt: float,
-                 open_close_gap: float, resolution: float, max_reopenings: int,
+                 open_close_gap: float, resolution: np.ndarray, max_reopenings: int,
                  max_switches: int):  # noqa: ANN201 (a long tuple, see docstring)
     """Table 2 for every contact after a solve with relative displacements `dr (c, 3)`.
 
@@ -91,23 +91,23 @@ def update_modes(d0: np.ndarray, normal: np.ndarray, dr: np.ndarray, shear0: np.
     contact whose spring presses while its normal dashpot pulls loses the dashpot for the
     rest of the step (`cn` set to 0 in place); one whose normal force, or whose spring
     across a gap, is tensile beyond its tensile strength opens (at most `max_reopenings`
-    times per step) and its bond breaks (a gap within `resolution`, the round-off of gaps,
-    is no tension: exactly touching cut faces would flip on it); a locked one whose shear
-    force exceeds `tan φ N + c A` slides along that force, a sliding one whose slip reverses
-    or that a locked spring could hold locks again, continuing from its friction force.
-    After `max_switches` locked <-> sliding changes in a step a contact sits at its friction
-    limit: it stays locked and its spring's anchor (`offset`) slides back until the shear
-    force is the friction (return mapping), unless the iteration set it sliding for good
-    (`switches` = FINAL_SLIDE). An open contact that penetrates (deeper than
-    `open_close_gap` plus `resolution`) and would press (the force law of the opening test,
-    so a contact at rest on the boundary does not chatter) closes at its first entrance
-    (eqs. 42-47), sliding if the shear after entrance exceeds friction. Updates `offset`,
-    `broken`, `reopenings`, `switches` in place. Returns `(mode, tangent, nstar, d1, dr_t,
-    along, fn, changed, closed_changed, fric_change, anchored)`: the new modes, sliding
-    directions and friction normal forces N*, the end gaps, tangential slips, slips along
-    the old tangent, normal forces, whether any mode / any open-closed state changed, the
-    largest change of the friction forces relative to their largest value, and how far each
-    capped lock's anchor slid (m).
+    times per step) and its bond breaks (a gap within `resolution (c,)` m, the round-off of
+    its force, is no tension: exactly touching cut faces would flip on it); a locked one
+    whose shear force exceeds `tan φ N + c A` slides along that force, a sliding one whose
+    slip reverses or that a locked spring could hold locks again, continuing from its
+    friction force. After `max_switches` locked <-> sliding changes in a step a contact sits
+    at its friction limit: it stays locked and its spring's anchor (`offset`) slides back
+    until the shear force is the friction (return mapping), unless the iteration set it
+    sliding for good (`switches` = FINAL_SLIDE). An open contact that penetrates (deeper
+    than `open_close_gap` plus its `resolution`) and would press (the force law of the
+    opening test, so a contact at rest on the boundary does not chatter) closes at its first
+    entrance (eqs. 42-47), sliding if the shear after entrance exceeds friction. Updates
+    `offset`, `broken`, `reopenings`, `switches` in place. Returns `(mode, tangent, nstar,
+    d1, dr_t, along, fn, changed, closed_changed, fric_change, anchored)`: the new modes,
+    sliding directions and friction normal forces N*, the end gaps, tangential slips, slips
+    along the old tangent, normal forces, whether any mode / any open-closed state changed,
+    the largest change of the friction forces relative to their largest value, and how far
+    each capped lock's anchor slid (m).
     """
     c = len(d0)
     new_mode = mode.copy()
@@ -149,7 +149,7 @@ def update_modes(d0: np.ndarray, normal: np.ndarray, dr: np.ndarray, shear0: np.
             normal_force = -kn * g1
             changed = True
         fn[k] = normal_force if closed else 0.0
-        pull = allow + kn * resolution
+        pull = allow + kn * resolution[k]
         if (closed and (normal_force < -pull or -kn * g1 < -pull)
                 and reopenings[k] < max_reopenings):
             reopenings[k] += 1
@@ -189,7 +189,7 @@ def update_modes(d0: np.ndarray, normal: np.ndarray, dr: np.ndarray, shear0: np.
                 for r in range(3):
                     offset[k, r] = (fric_mag[k] / ks * tangent[k, r] - dr_t[k, r]
                                     - shear0[k, r])
-        elif g1 < -open_close_gap - resolution and normal_force > 0.0:
+        elif g1 < -open_close_gap - resolution[k] and normal_force > 0.0:
             # penetrating and pressed (spring and dashpot): it closes at its first entrance
             # within the step, and the contact point is revised (eq. 47)
             tstar = d0[k] / (d0[k] - g1) if d0[k] > 0 else 0.0

@@ -39,6 +39,7 @@ from engine.solver import BlockJacobi, SolveError, make_solver
 from engine.state import State, StepResult
 from engine.status import StepFailure
 from engine.system import BlockSystem
+from engine.tolerances import DEFAULT_TOLERANCES
 
 #: relative change of friction forces below which the open-close iteration has converged
 FRICTION_RTOL = 1e-4
@@ -109,6 +110,7 @@ class _Terms:
     cohesion_force: np.ndarray
     tension_force: np.ndarray
     cn: np.ndarray
+    resolution: np.ndarray  # (c,) m: gaps within it are round-off (contact_round_off)
 
 
 def contact_damping(system: BlockSystem, state: State, contacts: ContactSet
@@ -138,6 +140,10 @@ def _terms(system: BlockSystem, state: State, contacts: ContactSet, areas: np.nd
     # only the normal dashpot acts inside the solve: a shear dashpot on a locked contact is
     # viscous static friction (the shear dashpots after the step, engine.damping, keep theirs)
     cn, _ = contact_damping(system, state, contacts)
+    weight = system.density * mass_properties(system, state)[0] * float(
+        np.linalg.norm(system.gravity))
+    weight = np.where(system.fixed, np.inf, weight)
+    lighter = np.minimum(weight[bi], weight[bj])
     return _Terms(
         bi=bi, bj=bj, normal=contacts.normal, d0=contacts.gap, shear0=shear0,
         ti=np.ascontiguousarray(asm.displacement_matrices(
@@ -146,7 +152,8 @@ def _terms(system: BlockSystem, state: State, contacts: ContactSet, areas: np.nd
             contacts.point_j, state.centroid[bj])[:, :, :nd]),
         dmap=np.ascontiguousarray(system.dof_map[:, :nd]), tan_phi=system.tan_phi[jm],
         cohesion_force=system.cohesion[jm] * areas, tension_force=system.tension[jm] * areas,
-        cn=cn)
+        cn=cn, resolution=np.where(np.isfinite(lighter), DEFAULT_TOLERANCES.contact_round_off
+                                   * lighter / system.kn, 0.0))
 
 
 @dataclass
@@ -278,7 +285,7 @@ def _cycle(system: BlockSystem, state: State, t: _Terms, m: _Modes, lin: _Linear
     out = update_modes(t.d0, t.normal, dr, t.shear0, m.offset, m.mode, m.tangent, m.broken,
                        m.reopenings, m.switches, t.tan_phi, t.tension_force,
                        t.cohesion_force, fric_mag, m.fric_prev, system.kn, system.ks, m.cn,
-                       dt, system.open_close_gap, system.gap_resolution, MAX_REOPENINGS,
+                       dt, system.open_close_gap, t.resolution, MAX_REOPENINGS,
                        MAX_SHEAR_SWITCHES)
     clock = diag.tick("open_close", clock)
     return _Cycle(x, fric_mag, fric, dr, *out), clock
@@ -314,7 +321,7 @@ def release_held_contacts(system: BlockSystem, t: _Terms, m: _Modes, cyc: _Cycle
     allow_tension = np.where(m.broken, 0.0, t.tension_force)
     pull = np.minimum(cyc.fn, -system.kn * cyc.d1)  # the dashpot may not hold a gap shut
     held = (m.mode != OPEN) & (m.reopenings >= MAX_REOPENINGS) & (
-        pull < -allow_tension - system.kn * (system.open_close_gap + system.gap_resolution))
+        pull < -allow_tension - system.kn * (system.open_close_gap + t.resolution))
     now = _rescue_once(m, held, m.released, OPEN, lambda count: StepFailure(
         f"open-close iteration did not settle: {count} contact(s) kept closing and opening",
         "held_contacts"))

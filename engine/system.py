@@ -31,8 +31,7 @@ class BlockSystem:
     - `emat (n, 6, 6)` Pa; `kn`, `ks`, `kf` N/m (normal, shear and fixed-point penalties)
     - `thickness (n,)` 2V/A m, `radius (n,)` m (farthest surface vertex from the centroid)
     - `max_step_displacement` m: no point moves more in a step; `search_distance` m
-    - `touch_gap` m: closer blocks touch; `open_close_gap` m: the open-close hysteresis;
-      `gap_resolution` m: the round-off of a gap (the open-close iteration does not flip on it)
+    - `touch_gap` m: closer blocks touch; `open_close_gap` m: the open-close hysteresis
     - `tan_phi`, `cohesion` (Pa), `tension` (Pa) per joint material
     - `gravity` m/s²: body force per unit mass (gravity plus any pseudo-static seismic
       load, :attr:`engine.model.Model.body_acceleration`)
@@ -72,7 +71,6 @@ class BlockSystem:
     search_distance: float
     touch_gap: float
     open_close_gap: float
-    gap_resolution: float
     tan_phi: np.ndarray
     cohesion: np.ndarray
     tension: np.ndarray
@@ -177,7 +175,6 @@ def build_system(model: Model, adaptive_search: bool = True) -> BlockSystem:
         max_step_displacement=max_step, search_distance=2.0 * max_step,
         touch_gap=DEFAULT_TOLERANCES.lengths(scale).touching,
         open_close_gap=c.open_close_tolerance * max_step,
-        gap_resolution=DEFAULT_TOLERANCES.lengths(scale).gap_resolution,
         tan_phi=np.array([np.tan(j.friction_angle_rad) for j in model.joint_materials]),
         cohesion=cohesion, tension=tension,
         needs_areas=bool(np.any(cohesion > 0) or np.any(tension > 0)),

@@ -14,7 +14,6 @@ class Lengths:
     on_plane: float
     feature_snap: float
     touching: float
-    gap_resolution: float
 
 
 @dataclass(frozen=True)
@@ -35,12 +34,13 @@ class Tolerances:
     feature_snap: float = 1e-6
     #: a new contact whose gap is below this (relative) touches and starts closed
     touching: float = 1e-9
-    #: gaps within this (relative) of zero are round-off: the open-close iteration neither
-    #: opens a closed contact nor closes an open one on them. A cut rock mass's faces touch
-    #: exactly (gap 0.0) and carry no force; at 5,272 blocks 54,000 of 130,000 of them
-    #: flipped each step on forces of 1e-11 of a block's weight (1e-18 m), and the cascade
-    #: that followed held Δt at 2.4 µs (benchmarks/TIMESTEP-FINDINGS.md, stop 26)
-    gap_resolution: float = 1e-12
+    #: a contact force below this fraction of the lighter block's weight is round-off: the
+    #: open-close iteration neither opens a closed contact nor closes an open one on it
+    #: (a fraction of the weight, not a length, so that it means the same at any penalty). A
+    #: cut rock mass's faces touch exactly (gap 0.0) and carry no force; at 5,272 blocks
+    #: ~54,000 of 130,000 flipped each step on forces of a median 1e-11 of a block's weight,
+    #: and the cascade that followed held Δt at 2.4 µs (benchmarks/TIMESTEP-FINDINGS.md)
+    contact_round_off: float = 1e-9
     #: cells or blocks with volume below this fraction of the domain volume are slivers
     sliver_volume: float = 1e-9
     #: unit normals whose dot product exceeds 1 - this are parallel
@@ -54,7 +54,7 @@ class Tolerances:
         """The length tolerances in metres for a model of size `scale` (m)."""
         s = max(float(scale), 1e-12)
         return Lengths(self.point_merge * s, self.planarity * s, self.on_plane * s,
-                       self.feature_snap * s, self.touching * s, self.gap_resolution * s)
+                       self.feature_snap * s, self.touching * s)
 
 
 DEFAULT_TOLERANCES = Tolerances()

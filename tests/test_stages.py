@@ -168,7 +168,7 @@ def test_update_modes_follows_table_2() -> None:
     z3, z = np.zeros((4, 3)), np.zeros(4)
     out = update_modes(d0, normal, dr, z3, z3.copy(), mode, tangent, np.zeros(4, bool),
                        np.zeros(4, np.int64), np.zeros(4, np.int64), np.full(4, 0.5), z, z,
-                       np.full(4, 5e3), z3, 1e9, 1e9, z.copy(), 1e-3, 1e-7, 0.0, 2, 2)
+                       np.full(4, 5e3), z3, 1e9, 1e9, z.copy(), 1e-3, 1e-7, z.copy(), 2, 2)
     new_mode, nstar, d1, fn, changed = out[0], out[2], out[3], out[6], out[7]
     assert list(new_mode) == [OPEN, SLIDING, LOCKED, LOCKED]
     np.testing.assert_allclose(d1, d0 + dr[:, 2])
@@ -180,8 +180,8 @@ def test_update_modes_follows_table_2() -> None:
 
 def test_exactly_touching_faces_do_not_flip_on_round_off() -> None:
     """Cut faces touch exactly (gap 0.0) and carry no force: a solve's round-off (1e-20 m)
-    neither opens the closed one nor closes the open one when the gap resolution covers it,
-    and does without it; beyond the resolution both flip as Table 2 says."""
+    neither opens the closed one nor closes the open one when their resolution covers it,
+    and does without one; beyond the resolution both flip as Table 2 says."""
     normal = np.tile([0.0, 0.0, 1.0], (2, 1))
     d0 = np.zeros(2)
     z3, z = np.zeros((2, 3)), np.zeros(2)
@@ -191,7 +191,7 @@ def test_exactly_touching_faces_do_not_flip_on_round_off() -> None:
         out = update_modes(d0, normal, dr, z3, z3.copy(), np.array([LOCKED, OPEN], np.int8),
                            np.zeros((2, 3)), np.ones(2, bool), np.zeros(2, np.int64),
                            np.zeros(2, np.int64), np.full(2, 0.5), z, z, z.copy(), z3, 1e9,
-                           1e9, z.copy(), 1e-3, 0.0, resolution, 2, 2)
+                           1e9, z.copy(), 1e-3, 0.0, np.full(2, resolution), 2, 2)
         return list(out[0])
 
     assert modes(1e-20, 1e-11) == [LOCKED, OPEN]
@@ -210,7 +210,7 @@ def test_a_contact_past_the_switch_cap_is_held_at_its_friction_limit() -> None:
     out = update_modes(d0, normal, dr, z3, offset, np.array([LOCKED], np.int8),
                        np.array([[1.0, 0, 0]]), np.zeros(1, bool), np.zeros(1, np.int64),
                        np.full(1, 2, np.int64), np.full(1, 0.5), z, z, z.copy(), z3, 1e9,
-                       1e9, z.copy(), 1e-3, 0.0, 0.0, 2, 2)
+                       1e9, z.copy(), 1e-3, 0.0, z.copy(), 2, 2)
     assert out[0][0] == LOCKED
     stretch = offset[0] + dr[0]  # N = 1e9 × 1e-5 = 1e4 N, friction 5e3 N
     assert 1e9 * stretch[0] == pytest.approx(5e3)
@@ -243,7 +243,7 @@ def test_a_parting_contact_loses_its_dashpot_not_its_spring() -> None:
     out = update_modes(d0, normal, dr, z3, z3.copy(), np.array([LOCKED], np.int8),
                        np.array([[1.0, 0, 0]]), np.zeros(1, bool), np.zeros(1, np.int64),
                        np.zeros(1, np.int64), np.full(1, 0.5), z, z, z.copy(), z3, 1e9, 1e9,
-                       cn, 1e-3, 0.0, 0.0, 2, 2)
+                       cn, 1e-3, 0.0, z.copy(), 2, 2)
     assert out[0][0] == LOCKED
     assert cn[0] == 0.0
     assert out[6][0] == pytest.approx(1e9 * 1e-5)
