@@ -92,9 +92,9 @@ def test_jointed_slope_runs_two_seconds_without_creating_energy() -> None:
     user chose it): 2 s complete, the energy balance within 1 % of gravity's work and no
     block faster than twice the free-fall speed of the deepest drop in the slope (what an
     impact of a heavy block on a light one can give). Measured: completed in 2000 steps,
-    balance −2.6e-6 of gravity's work, fastest block 0.48 × that bound; the springs' energy
-    lost between steps (contacts re-detected shallower or not at all, as blocks land) is
-    1.8 % of gravity's work (1.5 % before the contact round-off of issue 14), booked as
+    balance within 0.005 % of gravity's work, fastest block 0.48 × that bound; the springs'
+    energy lost between steps (contacts re-detected shallower or not at all, as blocks land)
+    is 1.8 % of gravity's work (1.5 % before the contact round-off of issue 14), booked as
     numerical dissipation (it was the whole balance
     residual, −0.86 % before the friction-limit anchors, −1.5 % with them, while unbooked);
     before this issue slivers were shot out at 28 m/s at t ≈ 0."""
