@@ -113,6 +113,23 @@ class _Terms:
     resolution: np.ndarray  # (c,) m: gaps within it are round-off (contact_round_off)
 
 
+def block_masses(system: BlockSystem, state: State) -> np.ndarray:
+    """Each block's mass `(n,)` kg, infinite for a fixed block."""
+    return np.where(system.fixed, np.inf, system.density * mass_properties(system, state)[0])
+
+
+def round_off_gaps(system: BlockSystem, state: State, contacts: ContactSet) -> np.ndarray:
+    """Each contact's gap resolution `(c,)` m: the spring stretch whose force is
+    `contact_round_off` of the lighter block's weight (0 between fixed blocks)."""
+    lighter = np.minimum(*(block_masses(system, state)[b]
+                           for b in (contacts.block_i, contacts.block_j)))
+    force = np.zeros(len(lighter))
+    free = np.isfinite(lighter)
+    force[free] = (DEFAULT_TOLERANCES.contact_round_off * float(np.linalg.norm(system.gravity))
+                   * lighter[free])
+    return force / system.kn
+
+
 def contact_damping(system: BlockSystem, state: State, contacts: ContactSet
                     ) -> tuple[np.ndarray, np.ndarray]:
     """Normal and shear dashpots `(cn, cs)` `(c,)` N·s/m of the step's contacts: the
@@ -123,7 +140,7 @@ def contact_damping(system: BlockSystem, state: State, contacts: ContactSet
     c = len(contacts)
     if zeta <= 0 or c == 0:
         return np.zeros(c), np.zeros(c)
-    mass = np.where(system.fixed, np.inf, system.density * mass_properties(system, state)[0])
+    mass = block_masses(system, state)
     mi, mj = mass[contacts.block_i], mass[contacts.block_j]
     reduced = 1.0 / (1.0 / mi + 1.0 / mj)
     pair = contacts.block_i * system.n + contacts.block_j
@@ -140,10 +157,6 @@ def _terms(system: BlockSystem, state: State, contacts: ContactSet, areas: np.nd
     # only the normal dashpot acts inside the solve: a shear dashpot on a locked contact is
     # viscous static friction (the shear dashpots after the step, engine.damping, keep theirs)
     cn, _ = contact_damping(system, state, contacts)
-    weight = system.density * mass_properties(system, state)[0] * float(
-        np.linalg.norm(system.gravity))
-    weight = np.where(system.fixed, np.inf, weight)
-    lighter = np.minimum(weight[bi], weight[bj])
     return _Terms(
         bi=bi, bj=bj, normal=contacts.normal, d0=contacts.gap, shear0=shear0,
         ti=np.ascontiguousarray(asm.displacement_matrices(
@@ -152,8 +165,7 @@ def _terms(system: BlockSystem, state: State, contacts: ContactSet, areas: np.nd
             contacts.point_j, state.centroid[bj])[:, :, :nd]),
         dmap=np.ascontiguousarray(system.dof_map[:, :nd]), tan_phi=system.tan_phi[jm],
         cohesion_force=system.cohesion[jm] * areas, tension_force=system.tension[jm] * areas,
-        cn=cn, resolution=np.where(np.isfinite(lighter), DEFAULT_TOLERANCES.contact_round_off
-                                   * lighter / system.kn, 0.0))
+        cn=cn, resolution=round_off_gaps(system, state, contacts))
 
 
 @dataclass
