@@ -173,16 +173,40 @@ def update_bsr(data: np.ndarray, ti: np.ndarray, tj: np.ndarray, normal: np.ndar
 
 
 @nb.njit(cache=True)
-def coupled_block_rows(m: int, slot_ij: np.ndarray, fi: np.ndarray, fj: np.ndarray,
+def _root(parent: np.ndarray, r: int) -> int:
+    """Root of `r` in the union-find forest `parent`, halving the path on the way."""
+    while parent[r] != r:
+        parent[r] = parent[parent[r]]
+        r = parent[r]
+    return r
+
+
+@nb.njit(cache=True)
+def coupled_components(m: int, slot_ij: np.ndarray, fi: np.ndarray, fj: np.ndarray,
                        kn: np.ndarray, ks: np.ndarray) -> np.ndarray:
-    """Block rows `(r,)` (sorted) that share a contact with nonzero stiffness with another
-    free block: the rows conjugate gradients must iterate on."""
+    """The connected component of every block row through contacts with nonzero stiffness
+    `(m,) int`, numbered from 0 in the order of their first rows; -1 for a row that shares
+    no such contact with another free block (conjugate gradients need not iterate on it)."""
+    parent = np.arange(m)
     hit = np.zeros(m, dtype=np.bool_)
     for k in range(len(kn)):
         if slot_ij[k] >= 0 and (kn[k] != 0.0 or ks[k] != 0.0):
             hit[fi[k]] = True
             hit[fj[k]] = True
-    return np.flatnonzero(hit)
+            a, b = _root(parent, fi[k]), _root(parent, fj[k])
+            if a != b:  # the smaller row is the root: a component's root is its first row
+                parent[max(a, b)] = min(a, b)
+    label = np.full(m, -1, dtype=np.int64)
+    count = 0
+    for r in range(m):
+        if hit[r]:
+            root = _root(parent, r)
+            if root == r:
+                label[r] = count
+                count += 1
+            else:
+                label[r] = label[root]
+    return label
 
 
 @nb.njit(cache=True)

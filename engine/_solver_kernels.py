@@ -173,6 +173,62 @@ def pcg_bsr(indptr: np.ndarray, indices: np.ndarray, data: np.ndarray, inv: np.n
 
 
 @nb.njit(cache=True)
+def factor_components(indptr: np.ndarray, indices: np.ndarray, data: np.ndarray,
+                      ptr: np.ndarray, rows: np.ndarray) -> tuple[np.ndarray, np.ndarray, bool]:
+    """Dense Cholesky factors of K on each component `rows[ptr[c]:ptr[c + 1]]` of its
+    block rows (BSR `indptr`, `indices`, `data (nnzb, b, b)`; no block couples two
+    components): `(factors, offsets, ok)`, component c's factor row-major in
+    `factors[offsets[c]:offsets[c + 1]]`; ok False if one is not positive definite."""
+    b = data.shape[1]
+    n_comp = len(ptr) - 1
+    offsets = np.zeros(n_comp + 1, dtype=np.int64)
+    for c in range(n_comp):
+        size = (ptr[c + 1] - ptr[c]) * b
+        offsets[c + 1] = offsets[c] + size * size
+    factors = np.zeros(offsets[n_comp])
+    local = np.full(len(indptr) - 1, -1, dtype=np.int64)
+    for c in range(n_comp):
+        size = (ptr[c + 1] - ptr[c]) * b
+        for q in range(ptr[c], ptr[c + 1]):
+            local[rows[q]] = q - ptr[c]
+        a = np.zeros((size, size))
+        for q in range(ptr[c], ptr[c + 1]):
+            r, i0 = rows[q], (q - ptr[c]) * b
+            for p in range(indptr[r], indptr[r + 1]):
+                if local[indices[p]] < 0:  # a zero block to a row of another component
+                    continue
+                j0 = local[indices[p]] * b
+                for i in range(b):
+                    for j in range(b):
+                        a[i0 + i, j0 + j] = data[p, i, j]
+        low = np.zeros((size, size))
+        if not _factor(a, low):
+            return factors, offsets, False
+        factors[offsets[c]:offsets[c + 1]] = low.ravel()
+        for q in range(ptr[c], ptr[c + 1]):
+            local[rows[q]] = -1
+    return factors, offsets, True
+
+
+@nb.njit(cache=True)
+def solve_components(factors: np.ndarray, offsets: np.ndarray, ptr: np.ndarray,
+                     rows: np.ndarray, b: int, f: np.ndarray, x: np.ndarray) -> None:
+    """Overwrite `x` on each component's block rows with K's exact solution there, from
+    the factors of :func:`factor_components`."""
+    for c in range(len(ptr) - 1):
+        size = (ptr[c + 1] - ptr[c]) * b
+        low = factors[offsets[c]:offsets[c + 1]].reshape((size, size))
+        y = np.empty(size)
+        for q in range(ptr[c], ptr[c + 1]):
+            for i in range(b):
+                y[(q - ptr[c]) * b + i] = f[rows[q] * b + i]
+        _solve_factored(low, y)
+        for q in range(ptr[c], ptr[c + 1]):
+            for i in range(b):
+                x[rows[q] * b + i] = y[(q - ptr[c]) * b + i]
+
+
+@nb.njit(cache=True)
 def cholesky(k: np.ndarray) -> tuple[np.ndarray, bool]:
     """Lower Cholesky factor `L` of a small dense symmetric positive definite `k (n, n)`
     (`(L, ok)`, ok False if k is not positive definite). For the few unknowns of a small

@@ -18,7 +18,7 @@ import scipy.sparse as sp
 from engine._assembly_kernels import (
     bsr_pattern,
     bsr_to_dense,
-    coupled_block_rows,
+    coupled_components,
     fill_bsr,
     update_bsr,
 )
@@ -123,8 +123,8 @@ class SystemPlan:
     slot_ij: np.ndarray
     slot_ji: np.ndarray
     dense: bool
-    #: block rows coupled by the last matrix (:func:`coupled_block_rows`)
-    coupled: np.ndarray | None = None
+    #: the last matrix's coupled components of the block rows (:func:`coupled_components`)
+    components: np.ndarray | None = None
     #: the last matrix's contact stiffnesses `kn`, `ks (c,)` and BSR data, for updates
     last: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
 
@@ -132,11 +132,11 @@ class SystemPlan:
                                                                np.ndarray]:
         """K and its diagonal blocks `(m, d, d)` for per-contact normal and shear
         stiffness `kn`, `ks (c,)` (0 where the contact is open / not locked); K is dense
-        for small systems, else BSR. Also sets :attr:`coupled`."""
+        for small systems, else BSR. Also sets :attr:`components`."""
         kn = np.ascontiguousarray(kn, dtype=np.float64)
         ks = np.ascontiguousarray(ks, dtype=np.float64)
         data = self._data(kn, ks)
-        self.coupled = coupled_block_rows(self.m, self.slot_ij, self.fi, self.fj, kn, ks)
+        self.components = coupled_components(self.m, self.slot_ij, self.fi, self.fj, kn, ks)
         dblk = data[self.diag_slot]
         if self.dense:
             return bsr_to_dense(self.indptr, self.indices, data), dblk

@@ -22,7 +22,7 @@ friction.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -83,6 +83,9 @@ class _Dashpots:
     pressed: np.ndarray
     headroom: np.ndarray
     dt: float
+    #: the block-Jacobi inverses, kept across the passes: only the rows whose dashpots
+    #: changed are inverted again (the others are M's blocks)
+    jacobi: BlockJacobi = field(default_factory=BlockJacobi)
 
     def velocities(self, v_target: np.ndarray) -> np.ndarray:
         """End velocities `(n, 12)` with the dashpots pulling the shear rings' slip rates
@@ -101,7 +104,7 @@ class _Dashpots:
             b = (self.rhs + asm.scatter_vector(system.dof_map, sub.block_i, gi, system.n_unknowns)
                  - asm.scatter_vector(system.dof_map, sub.block_j, gj, system.n_unknowns))
             try:
-                x = make_solver(a, nd, adiag, BlockJacobi(), self.plan.coupled)(b, None)
+                x = make_solver(a, nd, adiag, self.jacobi, self.plan.components)(b, None)
             except SolveError as exc:
                 raise StepFailure(str(exc), "solve") from exc
             v = self.v0.copy()

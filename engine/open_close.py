@@ -241,7 +241,7 @@ class _LinearSystem:
             kn, ks = np.concatenate([kn, ka]), np.concatenate([ks, ksb])
         k, kdiag = self.plan.matrix(kn, ks)
         try:
-            self.solver = make_solver(k, s.ndof, kdiag, self.jacobi, self.plan.coupled)
+            self.solver = make_solver(k, s.ndof, kdiag, self.jacobi, self.plan.components)
         except SolveError as exc:
             raise StepFailure(str(exc), "solve") from exc
         self.key = key

@@ -14,7 +14,14 @@ import scipy.linalg as sla
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
-from engine._solver_kernels import cholesky, cholesky_solve, invert_spd_blocks, pcg_bsr
+from engine._solver_kernels import (
+    cholesky,
+    cholesky_solve,
+    factor_components,
+    invert_spd_blocks,
+    pcg_bsr,
+    solve_components,
+)
 
 #: systems with more unknowns use conjugate gradients. Measured on real DDA systems
 #: (`python benchmarks/bench_solver.py`, cubes in contact, 2 cores): SuperLU 12.7 ms vs
@@ -22,6 +29,11 @@ from engine._solver_kernels import cholesky, cholesky_solve, invert_spd_blocks, 
 #: friction cycles of an open-close iteration, so direct pays off only for small systems
 DIRECT_SOLVE_MAX_UNKNOWNS = 300
 CG_RTOL = 1e-12
+#: coupled components of at most this many blocks are solved exactly by a dense Cholesky
+#: instead of conjugate gradients: CG needs about as many iterations as a stiff component
+#: has unknowns, and all components iterate as long as the slowest (a landing pile: 42
+#: components of 2 - 4 blocks, 48 iterations a solve)
+COMPONENT_DIRECT_MAX_BLOCKS = 16
 
 
 class SolveError(RuntimeError):
@@ -97,15 +109,17 @@ class BlockJacobi:
 
 def make_solver(
     k: sp.spmatrix, block: int = 6, diag_blocks: np.ndarray | None = None,
-    jacobi: BlockJacobi | None = None, coupled: np.ndarray | None = None,
+    jacobi: BlockJacobi | None = None, components: np.ndarray | None = None,
 ) -> Callable[[np.ndarray, np.ndarray | None], np.ndarray]:
     """A function `solve(F, x0) -> D` for this K, factorized or CG by size.
 
     The factorization (or preconditioner) is built once and reused for every
     right-hand side of the open-close iteration that keeps the same K. `diag_blocks
     (n / block, block, block)`, when given, are K's diagonal blocks (saves extracting them);
-    `jacobi` keeps the preconditioner of the previous K to update it; `coupled`, when
-    given, are the block rows with an off-diagonal block (:func:`coupled_rows`).
+    `jacobi` keeps the preconditioner of the previous K to update it; `components (n /
+    block,)`, when given, are the coupled components of the block rows
+    (:func:`engine._assembly_kernels.coupled_components`): the small ones are factorized
+    (:func:`split_components`), CG iterates on the others.
     """
     n = k.shape[0]
     if n == 0:
@@ -130,15 +144,40 @@ def make_solver(
     pre = (jacobi or block_jacobi)(diag_blocks)
     kc = k if sp.isspmatrix_bsr(k) and k.blocksize == (block, block) else sp.bsr_matrix(
         k, blocksize=(block, block))
-    rows = coupled_rows(kc) if coupled is None else coupled
+    if components is None:
+        ptr, small, rows = np.zeros(1, dtype=np.int64), np.zeros(0, dtype=np.int64), \
+            coupled_rows(kc)
+    else:
+        ptr, small, rows = split_components(components, COMPONENT_DIRECT_MAX_BLOCKS)
+    factors, offsets, ok = factor_components(kc.indptr, kc.indices, np.ascontiguousarray(
+        kc.data, dtype=np.float64), ptr, small)
+    if not ok:
+        raise SolveError("the system matrix is not positive definite (a coupled component)")
 
     def cg(f: np.ndarray, x0: np.ndarray | None = None) -> np.ndarray:
         x, iters = pcg(kc, f, pre, x0, CG_RTOL, 10 * n, rows)
-        if iters < 0 or not np.all(np.isfinite(x)):
+        if iters < 0:
             raise SolveError(f"conjugate gradients did not converge in {10 * n} iterations")
+        solve_components(factors, offsets, ptr, small, block, f, x)
+        if not np.all(np.isfinite(x)):
+            raise SolveError("the solve produced non-finite values")
         return x
 
     return cg
+
+
+def split_components(components: np.ndarray, max_blocks: int) -> tuple[np.ndarray, ...]:
+    """The coupled components of at most `max_blocks` block rows, as `(ptr, rows)` (the
+    rows of component c are `rows[ptr[c]:ptr[c + 1]]`), and the rows of the larger ones
+    `(r,)`, from the component of each block row `components (m,)` (-1: uncoupled)."""
+    coupled = np.flatnonzero(components >= 0)
+    label = components[coupled]
+    sizes = np.bincount(label)
+    small = sizes[label] <= max_blocks
+    rows = coupled[small][np.argsort(label[small], kind="stable")]
+    counts = sizes[sizes <= max_blocks]
+    ptr = np.concatenate([[0], np.cumsum(counts)]).astype(np.int64)
+    return ptr, rows.astype(np.int64), coupled[~small].astype(np.int64)
 
 
 def coupled_rows(k: sp.bsr_matrix) -> np.ndarray:

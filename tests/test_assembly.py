@@ -6,8 +6,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 import scipy.sparse as sp
+from scipy.sparse.csgraph import connected_components
 
 from engine import assembly as asm
+from engine import solver
 from engine._assembly_kernels import fill_bsr, unit_contact_terms
 from engine.solver import (
     BlockJacobi,
@@ -16,6 +18,7 @@ from engine.solver import (
     coupled_rows,
     make_solver,
     pcg,
+    split_components,
 )
 
 
@@ -82,12 +85,28 @@ def test_plan_matrix_is_the_sum_of_contact_terms(dense: bool,
         assert isinstance(k, np.ndarray) is dense
         ref = _brute_force(*args, kn, ks)
         np.testing.assert_allclose(full, ref, atol=1e-12)
-        if not dense:  # the coupled rows from the modes are those read off K
-            np.testing.assert_array_equal(plan.coupled, coupled_rows(k))
+        if not dense:  # the coupled rows and components from the modes are those of K
+            _assert_components_of(plan.components, k)
         d = plan.d
         for r in range(plan.m):
             np.testing.assert_allclose(kdiag[r], ref[r * d:r * d + d, r * d:r * d + d],
                                        atol=1e-12)
+
+
+def _assert_components_of(label: np.ndarray, k: sp.bsr_matrix) -> None:
+    """`label` numbers the connected components of K's nonzero off-diagonal blocks."""
+    np.testing.assert_array_equal(np.flatnonzero(label >= 0), coupled_rows(k))
+    m = k.shape[0] // 6
+    row = np.repeat(np.arange(m), np.diff(k.indptr))
+    nonzero = np.any(k.data != 0.0, axis=(1, 2)) & (row != k.indices)
+    graph = sp.csr_matrix((np.ones(nonzero.sum()), (row[nonzero], k.indices[nonzero])),
+                          shape=(m, m))
+    _, ref = connected_components(graph, directed=False)
+    coupled = label >= 0
+    # the same partition: one label per reference component and vice versa
+    pairs = set(zip(label[coupled].tolist(), ref[coupled].tolist(), strict=True))
+    assert len(pairs) == len({a for a, _ in pairs}) == len({b for _, b in pairs})
+    assert sorted({a for a, _ in pairs}) == list(range(len(pairs)))
 
 
 def test_dense_direct_and_cg_solvers_agree(monkeypatch: pytest.MonkeyPatch) -> None:
@@ -121,6 +140,32 @@ def test_cg_solves_blocks_without_closed_contacts_on_their_own(
     isolated = np.setdiff1d(np.arange(k.shape[0] // 6), rows)
     idx = (6 * isolated[:, None] + np.arange(6)).ravel()
     np.testing.assert_allclose((k @ x)[idx], f[idx], atol=1e-9 * np.linalg.norm(f))
+
+
+@pytest.mark.parametrize("closed", [0.1, 0.3])
+def test_small_coupled_components_are_solved_exactly(
+        monkeypatch: pytest.MonkeyPatch, closed: float) -> None:
+    """Components of a few coupled blocks (a landing pile's) are factorized, CG iterates on
+    the larger ones alone, and the answer is K's; at 30 % closed contacts one component
+    is larger than the direct limit, so both paths run in one solve."""
+    rng = np.random.default_rng(5)
+    args = _random_contacts(rng, n=80, c=300)
+    monkeypatch.setattr(asm, "DENSE_MAX_UNKNOWNS", 0)
+    kn = np.where(rng.random(300) < closed, 3.0, 0.0)
+    plan = asm.plan_system(*args)
+    k, kdiag = plan.matrix(kn, 0.5 * kn)
+    ptr, small, large = split_components(plan.components, solver.COMPONENT_DIRECT_MAX_BLOCKS)
+    assert len(ptr) > 2 and (len(large) > 0) is (closed > 0.2)
+    iterated = []
+    pcg_of = solver.pcg
+    monkeypatch.setattr(solver, "pcg", lambda *a: iterated.append(a[-1]) or pcg_of(*a))
+    f = rng.normal(size=k.shape[0])
+    x = make_solver(k, 6, kdiag, components=plan.components)(f, rng.normal(size=len(f)))
+    np.testing.assert_allclose(k @ x, f, atol=1e-10 * np.linalg.norm(f))
+    assert [len(r) for r in iterated] == [len(large)]
+    monkeypatch.setattr(solver, "COMPONENT_DIRECT_MAX_BLOCKS", 0)  # everything by CG
+    x_cg = make_solver(k, 6, kdiag, components=plan.components)(f, None)
+    np.testing.assert_allclose(x, x_cg, rtol=1e-8, atol=1e-12 * np.abs(x).max())
 
 
 def test_cg_refuses_a_matrix_that_is_not_positive_definite() -> None:
