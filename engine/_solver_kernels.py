@@ -49,21 +49,30 @@ def _solve_factored(low: np.ndarray, x: np.ndarray) -> None:
 
 @nb.njit(cache=True)
 def invert_spd_blocks(diag: np.ndarray) -> tuple[np.ndarray, bool]:
-    """Inverses of the symmetric positive definite blocks `diag (m, b, b)` by Cholesky;
-    `(inverse (m, b, b), ok)`, ok False if a block is not positive definite."""
+    """Inverses of the symmetric positive definite blocks `diag (m, b, b)` by Cholesky,
+    L⁻ᵀ L⁻¹ (a third of the work of solving for each column); `(inverse (m, b, b), ok)`,
+    ok False if a block is not positive definite."""
     m, b, _ = diag.shape
-    out = np.zeros((m, b, b))
+    out = np.empty((m, b, b))
     low = np.zeros((b, b))
-    col = np.zeros(b)
+    linv = np.zeros((b, b))  # L⁻¹, lower triangular (its upper part stays 0)
     for k in range(m):
         if not _factor(diag[k], low):
             return out, False
-        for e in range(b):  # column e of the inverse: L Lᵀ x = e
-            col[:] = 0.0
-            col[e] = 1.0
-            _solve_factored(low, col)
-            for i in range(b):
-                out[k, i, e] = col[i]
+        for j in range(b):
+            linv[j, j] = 1.0 / low[j, j]
+            for i in range(j + 1, b):
+                s = 0.0
+                for q in range(j, i):
+                    s -= low[i, q] * linv[q, j]
+                linv[i, j] = s / low[i, i]
+        for i in range(b):
+            for e in range(i, b):
+                s = 0.0
+                for q in range(e, b):
+                    s += linv[q, i] * linv[q, e]
+                out[k, i, e] = s
+                out[k, e, i] = s
     return out, True
 
 

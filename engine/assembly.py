@@ -127,6 +127,8 @@ class SystemPlan:
     components: np.ndarray | None = None
     #: the last matrix's contact stiffnesses `kn`, `ks (c,)` and BSR data, for updates
     last: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
+    #: the last BSR data and the matrix wrapping it (a view: an update in place shows)
+    bsr: tuple[np.ndarray, sp.bsr_matrix] | None = None
 
     def matrix(self, kn: np.ndarray, ks: np.ndarray) -> tuple[sp.bsr_matrix | np.ndarray,
                                                                np.ndarray]:
@@ -140,8 +142,10 @@ class SystemPlan:
         dblk = data[self.diag_slot]
         if self.dense:
             return bsr_to_dense(self.indptr, self.indices, data), dblk
-        n = self.m * self.d
-        return sp.bsr_matrix((data, self.indices, self.indptr), shape=(n, n)), dblk
+        if self.bsr is None or self.bsr[0] is not data:  # else K was updated in place
+            n = self.m * self.d
+            self.bsr = (data, sp.bsr_matrix((data, self.indices, self.indptr), shape=(n, n)))
+        return self.bsr[1], dblk
 
     def _data(self, kn: np.ndarray, ks: np.ndarray) -> np.ndarray:
         """BSR data of K for `kn`, `ks`: the last K updated in place by the contacts
