@@ -126,9 +126,24 @@ def _bsr_matvec(indptr: np.ndarray, indices: np.ndarray, data: np.ndarray, rows:
 
 
 @nb.njit(cache=True)
+def _block_apply6(inv: np.ndarray, rows: np.ndarray, r: np.ndarray, z: np.ndarray) -> None:
+    """:func:`_block_apply` for 6 x 6 blocks, written out (the same sums in the same order)."""
+    for k in rows:
+        k0 = k * 6
+        r0, r1, r2, r3, r4, r5 = r[k0], r[k0 + 1], r[k0 + 2], r[k0 + 3], r[k0 + 4], r[k0 + 5]
+        m = inv[k]
+        for i in range(6):
+            z[k0 + i] = (0.0 + m[i, 0] * r0 + m[i, 1] * r1 + m[i, 2] * r2 + m[i, 3] * r3
+                         + m[i, 4] * r4 + m[i, 5] * r5)
+
+
+@nb.njit(cache=True)
 def _block_apply(inv: np.ndarray, rows: np.ndarray, r: np.ndarray, z: np.ndarray) -> None:
     """z = M⁻¹ r on the block rows `rows`, M⁻¹ block diagonal `inv (m, b, b)`."""
     b = inv.shape[1]
+    if b == 6:
+        _block_apply6(inv, rows, r, z)
+        return
     for k in rows:
         k0 = k * b
         for i in range(b):
