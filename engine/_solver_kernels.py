@@ -79,28 +79,20 @@ def invert_spd_blocks(diag: np.ndarray) -> tuple[np.ndarray, bool]:
 @nb.njit(cache=True)
 def _bsr_matvec6(indptr: np.ndarray, indices: np.ndarray, data: np.ndarray, rows: np.ndarray,
                  x: np.ndarray, y: np.ndarray) -> None:
-    """:func:`_bsr_matvec` for 6 x 6 blocks (rigid blocks), written out: 2.3x faster on a
-    rock mass's K, and the same sums in the same order (bit for bit the same y)."""
+    """:func:`_bsr_matvec` for 6 x 6 blocks (rigid blocks), with the block size known to the
+    compiler: 2.3x faster on a rock mass's K, and the same sums in the same order (bit for
+    bit the same y)."""
     for r in rows:
-        y0 = y1 = y2 = y3 = y4 = y5 = 0.0
+        r0 = r * 6
+        for i in range(6):
+            y[r0 + i] = 0.0
         for p in range(indptr[r], indptr[r + 1]):
             c0 = indices[p] * 6
             a = data[p]
             x0, x1, x2, x3, x4, x5 = x[c0], x[c0 + 1], x[c0 + 2], x[c0 + 3], x[c0 + 4], x[c0 + 5]
-            y0 += (a[0, 0] * x0 + a[0, 1] * x1 + a[0, 2] * x2 + a[0, 3] * x3 + a[0, 4] * x4
-                   + a[0, 5] * x5)
-            y1 += (a[1, 0] * x0 + a[1, 1] * x1 + a[1, 2] * x2 + a[1, 3] * x3 + a[1, 4] * x4
-                   + a[1, 5] * x5)
-            y2 += (a[2, 0] * x0 + a[2, 1] * x1 + a[2, 2] * x2 + a[2, 3] * x3 + a[2, 4] * x4
-                   + a[2, 5] * x5)
-            y3 += (a[3, 0] * x0 + a[3, 1] * x1 + a[3, 2] * x2 + a[3, 3] * x3 + a[3, 4] * x4
-                   + a[3, 5] * x5)
-            y4 += (a[4, 0] * x0 + a[4, 1] * x1 + a[4, 2] * x2 + a[4, 3] * x3 + a[4, 4] * x4
-                   + a[4, 5] * x5)
-            y5 += (a[5, 0] * x0 + a[5, 1] * x1 + a[5, 2] * x2 + a[5, 3] * x3 + a[5, 4] * x4
-                   + a[5, 5] * x5)
-        r0 = r * 6
-        y[r0], y[r0 + 1], y[r0 + 2], y[r0 + 3], y[r0 + 4], y[r0 + 5] = y0, y1, y2, y3, y4, y5
+            for i in range(6):
+                y[r0 + i] += (0.0 + a[i, 0] * x0 + a[i, 1] * x1 + a[i, 2] * x2 + a[i, 3] * x3
+                              + a[i, 4] * x4 + a[i, 5] * x5)
 
 
 @nb.njit(cache=True)
