@@ -14,8 +14,8 @@ import time
 
 import numpy as np
 
-from engine.detection import detect_contacts
-from engine.geometry import Polyhedron
+from engine.contact.detection import detect_contacts
+from engine.geometry.polyhedron import Polyhedron
 
 BOX_FACES = [[0, 3, 2, 1], [4, 5, 6, 7], [0, 1, 5, 4], [1, 2, 6, 5], [2, 3, 7, 6], [3, 0, 4, 7]]
 

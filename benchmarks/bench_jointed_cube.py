@@ -16,8 +16,8 @@ from pathlib import Path
 
 import numpy as np
 
-from engine.contact_step import detect
-from engine.simulation import Simulation
+from engine.contact.search import detect
+from engine.step.simulation import Simulation
 from schemas.convert import build_model
 
 SCENE = Path(__file__).resolve().parents[1] / "examples" / "jointed_cube.json"

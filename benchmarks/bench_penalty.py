@@ -2,7 +2,7 @@
 
 The 10 m cube of `benchmarks.pile.rock_mass_model` (three joint sets at SPACING m, φ 30°,
 fixed base, asked Δt 1 ms) stepped through SIMULATED s at penalties from 1e8 N/m to the
-scene's default (:func:`engine.system.default_penalty`). Per penalty: wall time per
+scene's default (:func:`engine.dynamics.system.default_penalty`). Per penalty: wall time per
 simulated second, mean Δt, solves per step, cuts, the deepest penetration, and how far
 the blocks' displacements at the end differ from the stiffest run's (RMS over the blocks,
 relative to that run's RMS displacement). Run:
@@ -19,8 +19,8 @@ import warnings
 import numpy as np
 
 from benchmarks.pile import rock_mass_model
-from engine.simulation import Simulation, StepFailure
-from engine.system import default_penalty
+from engine.dynamics.system import default_penalty
+from engine.step.simulation import Simulation, StepFailure
 
 
 def run_one(spacing: float, simulated_s: float, penalty: float) -> dict:

@@ -32,12 +32,12 @@ from typing import Any
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from engine.contacts import ContactSet
-from engine.frame import Frame
-from engine.geometry import Polyhedron
+from engine.contact.constraints import ContactSet
+from engine.geometry.polyhedron import Polyhedron
 from engine.model import Block, Model
-from engine.results import ResultWriter, open_result
-from engine.simulation import run as run_model
+from engine.results.writer import ResultWriter, open_result
+from engine.step.frame import Frame
+from engine.step.simulation import run as run_model
 
 CUBE_FACES = [[0, 3, 2, 1], [4, 5, 6, 7], [0, 1, 5, 4], [1, 2, 6, 5], [2, 3, 7, 6], [3, 0, 4, 7]]
 UNIT = np.array([[0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0],

@@ -30,10 +30,10 @@ import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
-import engine.open_close as oc
+import engine.contact.open_close as oc
 from benchmarks.timestep import jointed_cube
-from engine.simulation import Simulation
-from engine.solver import BlockJacobi
+from engine.dynamics.solver import BlockJacobi
+from engine.step.simulation import Simulation
 
 
 @dataclass

@@ -13,13 +13,13 @@ import time
 import numpy as np
 import scipy.sparse.linalg as spla
 
-from engine import assembly as asm
-from engine.block_terms import block_terms
-from engine.contact_step import detect
+from engine.contact.search import detect
+from engine.dynamics import assembly as asm
+from engine.dynamics.block_terms import block_terms
+from engine.dynamics.solver import CG_RTOL, block_jacobi, pcg
+from engine.geometry.shapes import box
 from engine.model import AnalysisControls, Block, JointMaterial, Model
-from engine.shapes import box
-from engine.simulation import Simulation
-from engine.solver import CG_RTOL, block_jacobi, pcg
+from engine.step.simulation import Simulation
 
 
 def grid_model(n: int) -> Model:

@@ -22,12 +22,12 @@ import warnings
 import numba
 import numpy as np
 
-import engine.assembly as asm
-import engine.detection as det
+import engine.contact.detection as det
+import engine.dynamics.assembly as asm
 from benchmarks.timestep import jointed_cube
-from engine._assembly_kernels import fill_bsr
-from engine.contact_step import detect
-from engine.simulation import Simulation
+from engine.contact.search import detect
+from engine.dynamics._assembly_kernels import fill_bsr
+from engine.step.simulation import Simulation
 
 
 def _record(spacing: float, steps: int) -> tuple[Simulation, list[tuple]]:

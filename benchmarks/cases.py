@@ -12,9 +12,9 @@ from typing import Any
 import numpy as np
 
 from benchmarks import harness as h
+from engine.geometry.shapes import box, oriented_box
 from engine.model import AnalysisControls, Block, JointMaterial, Model, PointLoad
-from engine.shapes import box, oriented_box
-from engine.simulation import STATUS_COMPLETED
+from engine.step.simulation import STATUS_COMPLETED
 
 G = 9.81
 RHO = 2600.0

@@ -21,9 +21,9 @@ from typing import Any
 
 import numpy as np
 
-from engine.frame import DISSIPATIONS, ENERGY_NAMES, STORED_ENERGIES, WORKS, Frame
 from engine.model import Model
-from engine.simulation import RunResult, run
+from engine.step.frame import DISSIPATIONS, ENERGY_NAMES, STORED_ENERGIES, WORKS, Frame
+from engine.step.simulation import RunResult, run
 
 ROOT = Path(__file__).resolve().parents[1]
 SHARED = ROOT.parent / "shared"

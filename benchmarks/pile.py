@@ -8,10 +8,10 @@ from pathlib import Path
 import numpy as np
 
 from benchmarks import harness as h
-from engine.cutting import cut_blocks, joint_set_planes
-from engine.geometry import dip_normal
+from engine.geometry.cutting import cut_blocks, joint_set_planes
+from engine.geometry.polyhedron import dip_normal
+from engine.geometry.shapes import box, convex_hull
 from engine.model import AnalysisControls, Block, JointMaterial, Material, Model
-from engine.shapes import box, convex_hull
 
 #: joint sets of the rock mass, (dip, dip direction) in degrees (as bench_cutting.py)
 JOINT_SETS = [(45.0, 135.0), (45.0, 315.0), (75.0, 45.0)]

@@ -17,7 +17,7 @@ from benchmarks.cases import fall_model, incline_error, incline_model
 from benchmarks.pile import pile_model, pile_path, rock_mass_model
 from benchmarks.stability import stack10, thin_plate
 from engine.model import FixedPoint, Model
-from engine.simulation import Simulation, StepFailure
+from engine.step.simulation import Simulation, StepFailure
 
 PHASES = ("detection", "assembly", "solve", "open_close", "update")
 

@@ -14,11 +14,11 @@ import numpy as np
 from benchmarks import harness as h
 from benchmarks.cases import DOWN_DIP, INCLINE_D1, RHO, W, fall_model, incline_model
 from benchmarks.pile import pile_model
-from engine.cutting import convex_decomposition
-from engine.geometry import rotation_matrix
+from engine.geometry.cutting import convex_decomposition
+from engine.geometry.polyhedron import rotation_matrix
+from engine.geometry.shapes import box, prism
 from engine.model import AnalysisControls, Block, JointMaterial, Model
-from engine.shapes import box, prism
-from engine.simulation import STATUS_COMPLETED
+from engine.step.simulation import STATUS_COMPLETED
 
 #: energy may not rise above its start by more than this fraction of the reference energy
 ENERGY_TOL = 0.01

@@ -20,7 +20,7 @@ import numpy as np
 from benchmarks import harness as h
 from benchmarks.bench_jointed_cube import scene
 from engine.model import Model
-from engine.simulation import Simulation, StepFailure
+from engine.step.simulation import Simulation, StepFailure
 from schemas.convert import build_model
 
 #: Δt histogram bins (s): the asked 1 ms down to 1 µs, logarithmic

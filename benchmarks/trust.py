@@ -21,11 +21,11 @@ import numpy as np
 
 from benchmarks import harness as h
 from benchmarks.cases import DOWN_DIP, UP_NORMAL, W, incline_model
-from engine.frame import STORED_ENERGIES, WORKS
-from engine.frame import energy_created as energy_balance
+from engine.geometry.shapes import box
 from engine.model import AnalysisControls, Block, JointMaterial, Model
-from engine.shapes import box
-from engine.simulation import STATUS_COMPLETED
+from engine.step.frame import STORED_ENERGIES, WORKS
+from engine.step.frame import energy_created as energy_balance
+from engine.step.simulation import STATUS_COMPLETED
 
 #: a run may create at most this fraction of gravity's work as energy (issue 12)
 CREATED_TOL = 5e-3

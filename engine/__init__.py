@@ -23,7 +23,7 @@ def kernel_cache_dir() -> Path:
         return Path(os.environ["NUMBA_CACHE_DIR"])
     here = Path(__file__).resolve().parent
     digest = hashlib.sha256()
-    for path in sorted(here.glob("_*_kernels.py")) + [here / "contacts.py"]:
+    for path in sorted(here.rglob("_*_kernels.py")) + [here / "contact" / "constraints.py"]:
         if path.exists():
             digest.update(path.read_bytes())
     return here / "__pycache__" / f"kernels-{digest.hexdigest()[:16]}"

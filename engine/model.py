@@ -11,7 +11,10 @@ from typing import Literal
 
 import numpy as np
 
-from engine.geometry import Polyhedron
+from engine.geometry.polyhedron import Polyhedron
+from engine.loads.bolts import Bolt
+from engine.loads.seismic import GroundMotion, SeismicLoad
+from engine.loads.water import Water
 
 
 @dataclass(frozen=True)
@@ -34,21 +37,6 @@ class JointMaterial:
     friction_angle_rad: float = np.radians(DEFAULT_FRICTION_ANGLE_DEG)
     cohesion: float = 0.0
     tensile_strength: float = 0.0
-
-
-@dataclass(frozen=True)
-class JointPlane:
-    """One joint plane for block cutting.
-
-    `normal (3,)` unit normal, `point (3,)` a point on the plane, `tag` the joint id
-    the faces it makes will carry, `extent (k, 3)` a convex polygon in the plane that
-    bounds a non-persistent joint (None: persistent, cuts everything it crosses).
-    """
-
-    normal: np.ndarray
-    point: np.ndarray
-    tag: int = 0
-    extent: np.ndarray | None = None
 
 
 @dataclass
@@ -83,95 +71,11 @@ class FixedPoint:
 
 
 @dataclass(frozen=True)
-class Bolt:
-    """A rock bolt or cable from `head (3,)` m on block `block` to `anchor (3,)` m on block
-    `anchor_block` (-1: the ground, a point that never moves).
-
-    Axial and shear stiffness (N/m), pretension (N, tension), axial `capacity` (N, the
-    yield force; inf: none), `shear_capacity` (N; None: the axial capacity) and
-    `rupture_displacement` (m: the bolt breaks when its ends have moved apart by more since
-    installation; inf: never). See :mod:`engine.bolts`.
-    """
-
-    block: int
-    head: np.ndarray
-    anchor: np.ndarray
-    anchor_block: int = -1
-    axial_stiffness: float = 1e8
-    shear_stiffness: float = 0.0
-    pretension: float = 0.0
-    capacity: float = float("inf")
-    shear_capacity: float | None = None
-    rupture_displacement: float = float("inf")
-    name: str = ""
-
-
-@dataclass(frozen=True)
-class Water:
-    """Water in the joints: `unit_weight` (N/m³); a phreatic surface (a plane through
-    `surface_point (3,)` m with upward unit normal `surface_normal (3,)`, None: none) below
-    which the pressure is hydrostatic; a uniform pressure (Pa) per joint material index.
-    See :mod:`engine.water`."""
-
-    unit_weight: float = 9810.0
-    surface_point: np.ndarray | None = None
-    surface_normal: np.ndarray | None = None
-    joint_pressure: dict[int, float] = field(default_factory=dict)
-
-
-@dataclass(frozen=True)
-class GroundMotion:
-    """An acceleration time history of the ground (the fixed blocks): `times (k,)` s,
-    non-decreasing (a repeated time is a jump), `acceleration (k, 3)` m/s², linear between
-    samples and zero outside them. The run is in the ground's frame: every block that moves
-    feels the inertial body force −m a(t) (its step mean), so displacements are relative to
-    the ground (Newmark's sliding block)."""
-
-    times: np.ndarray
-    acceleration: np.ndarray
-
-    def mean(self, t0: float, t1: float) -> np.ndarray:
-        """Mean acceleration `(3,)` m/s² over `[t0, t1]` (exact for the piecewise-linear
-        history)."""
-        return (self._integral(t1) - self._integral(t0)) / (t1 - t0)
-
-    def _integral(self, t: float) -> np.ndarray:
-        """∫ a dt from the first sample to `t` `(3,)` m/s."""
-        times, acc = np.asarray(self.times, float), np.asarray(self.acceleration, float)
-        if len(times) == 0 or t <= times[0]:
-            return np.zeros(3)
-        seg = 0.5 * (acc[1:] + acc[:-1]) * np.diff(times)[:, None]
-        cum = np.concatenate([np.zeros((1, 3)), np.cumsum(seg, axis=0)])
-        if t >= times[-1]:
-            return cum[-1]
-        k = int(np.searchsorted(times, t, side="right")) - 1
-        h = times[k + 1] - times[k]
-        f = (t - times[k]) / h
-        a_t = acc[k] + f * (acc[k + 1] - acc[k])
-        return cum[k] + 0.5 * (acc[k] + a_t) * (t - times[k])
-
-
-@dataclass(frozen=True)
-class SeismicLoad:
-    """Pseudo-static seismic coefficients: `kh` (horizontal, fraction of g) pointing to
-    `azimuth_rad` (clockwise from North) and `kv` (vertical, fraction of g, positive up)."""
-
-    kh: float = 0.0
-    azimuth_rad: float = 0.0
-    kv: float = 0.0
-
-    def acceleration(self, g: float) -> np.ndarray:
-        """The body force per unit mass (m/s², (3,)) for gravity of magnitude `g` m/s²."""
-        return g * np.array([self.kh * np.sin(self.azimuth_rad),
-                             self.kh * np.cos(self.azimuth_rad), self.kv])
-
-
-@dataclass(frozen=True)
 class AnalysisControls:
     """How to run: time, penalties, iteration limits, block model.
 
     `penalty` is the normal stiffness of one contact spring (N/m; None: derived from the
-    scene, :func:`engine.system.default_penalty`); the shear spring is
+    scene, :func:`engine.dynamics.system.default_penalty`); the shear spring is
     `shear_penalty_ratio * penalty`. `contact_damping` is each contact dashpot's fraction
     of critical damping (0.5: a rock impact's restitution coefficient about 0.4).
     `dynamic_ratio` is k01 (1 dynamic, 0 static).

@@ -20,29 +20,28 @@ from typing import Any
 import numpy as np
 from scipy.optimize import linprog
 
-from engine.geometry import (
+from engine.analyses.kinematics import JointSet, SlopeFace
+from engine.geometry.joints import JointPlane
+from engine.geometry.polyhedron import (
     Polyhedron,
     dip_normal,
     face_normals_areas,
     polyhedron_problems,
     winding_numbers,
 )
-from engine.kinematics import JointSet, SlopeFace
+from engine.loads.bolts import Bolt
+from engine.loads.seismic import GroundMotion, SeismicLoad
+from engine.loads.water import Water
 from engine.model import (
     AnalysisControls,
     Block,
-    Bolt,
     FixedPoint,
-    GroundMotion,
     JointMaterial,
-    JointPlane,
     Material,
     Model,
     PointLoad,
     SeismicCoefficientControls,
-    SeismicLoad,
     StrengthReductionControls,
-    Water,
 )
 from engine.tolerances import DEFAULT_TOLERANCES
 from schemas.errors import Problems, SceneError, fmt_num, fmt_point
@@ -143,7 +142,7 @@ def _polygon_problem(poly: np.ndarray, normal: np.ndarray, point: np.ndarray) ->
 
 
 def _joint_planes(scene: Scene, domain: Polyhedron, p: Problems) -> list[JointPlane]:
-    from engine.cutting import disc_polygon, joint_set_planes
+    from engine.geometry.cutting import disc_polygon, joint_set_planes
 
     planes: list[JointPlane] = []
     for k, j in enumerate(scene.joints):
@@ -204,7 +203,7 @@ def _cut_domain(scene: Scene, p: Problems, warnings: list[str]) -> list[Polyhedr
     planes = _joint_planes(scene, domain, p)
     if p:
         return []
-    from engine.cutting import cut_blocks
+    from engine.geometry.cutting import cut_blocks
 
     result = cut_blocks(domain, planes, min_block_volume=d.min_block_volume,
                         min_block_width=d.min_block_width)
@@ -235,7 +234,7 @@ def _explicit_blocks(scene: Scene, p: Problems) -> list[Polyhedron | None]:
             continue
         poly = Polyhedron.from_faces(b.vertices, b.faces)
         if not poly.is_convex:
-            from engine.cutting import convex_decomposition
+            from engine.geometry.cutting import convex_decomposition
 
             poly = convex_decomposition(poly)
         out.append(poly)
@@ -285,7 +284,7 @@ def _check_overlaps(
 
     Two fixed blocks may overlap: they never touch each other in the analysis.
     """
-    from engine.detection import aabb_pairs
+    from engine.contact.detection import aabb_pairs
 
     if len(polys) < 2 or not locs:
         return
@@ -744,7 +743,7 @@ def build_model(scene: Scene | str | Path | dict[str, Any]) -> BuildResult:
 def kinematic_inputs(scene: Scene | str | Path | dict[str, Any]) -> tuple[list[JointSet],
                                                                          SlopeFace]:
     """The joints' orientations and friction angles and the slope face, for
-    :func:`engine.kinematics.kinematic_analysis`; nothing is cut.
+    :func:`engine.analyses.kinematics.kinematic_analysis`; nothing is cut.
 
     Each joint (a set or a single plane) is one orientation; its friction angle is the
     `slope_face.friction_angle` when given, else its joint material's. SceneError when the

@@ -20,9 +20,13 @@ from typing import Any
 
 import numpy as np
 
-from engine.analyses import TrialRun, critical_seismic_coefficient, factor_of_safety
-from engine.results import ResultWriter
-from engine.simulation import STATUS_COMPLETED, Progress, run
+from engine.analyses.strength_reduction import (
+    TrialRun,
+    critical_seismic_coefficient,
+    factor_of_safety,
+)
+from engine.results.writer import ResultWriter
+from engine.step.simulation import STATUS_COMPLETED, Progress, run
 from schemas.convert import BuildResult, build_model
 from schemas.errors import SceneError
 from schemas.scene import SCHEMA_VERSION, scene_json_schema
@@ -335,7 +339,7 @@ def cmd_kinematics(args: argparse.Namespace) -> int:
     with --plot, the equal-area stereonet as a PNG."""
     result = kinematic_result(Path(args.scene))
     if args.plot is not None:
-        from engine.stereonet import plot_stereonet
+        from engine.analyses.stereonet import plot_stereonet
 
         try:
             plot_stereonet(result, Path(args.plot), title=Path(args.scene).stem)
@@ -474,8 +478,8 @@ def _listed(values: list[str] | None) -> list[str] | None:
 
 def cmd_plot(args: argparse.Namespace) -> int:
     """PNG plots of a result file: histories, energy, displacement components, snapshots."""
-    from engine.plots import plot_all, snapshot_steps  # matplotlib only when plotting
-    from engine.results import open_result
+    from engine.results.plots import plot_all, snapshot_steps  # matplotlib only when plotting
+    from engine.results.writer import open_result
 
     blocks = _listed(args.blocks)
     try:

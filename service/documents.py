@@ -22,15 +22,15 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 if TYPE_CHECKING:
-    from engine.analyses import (
+    from engine.analyses.kinematics import KinematicResult
+    from engine.analyses.strength_reduction import (
         FactorOfSafetyResult,
         SeismicCoefficientControls,
         SeismicCoefficientResult,
         StrengthReductionControls,
     )
-    from engine.geometry import Polyhedron
-    from engine.kinematics import KinematicResult
-    from engine.results import Result
+    from engine.geometry.polyhedron import Polyhedron
+    from engine.results.writer import Result
     from schemas.convert import BuildResult
 
 #: default contact search distance for the contacts of a scene, as a fraction of its size
@@ -130,8 +130,8 @@ def scene_contacts_document(build: BuildResult,
                             search_distance: float | None = None) -> dict[str, Any]:
     """The contact constraints of the scene as given (before any step), found within
     `search_distance` m (default SEARCH_DISTANCE_RATIO × the model size)."""
-    from engine.contacts import KIND_NAMES, MODE_NAMES
-    from engine.detection import detect_contacts
+    from engine.contact.constraints import KIND_NAMES, MODE_NAMES
+    from engine.contact.detection import detect_contacts
 
     model = build.model
     search = (search_distance if search_distance is not None
@@ -161,7 +161,7 @@ def scene_contacts_document(build: BuildResult,
 def result_contacts_document(result: Result, step: int | None = None) -> dict[str, Any]:
     """The contacts of one recorded solver `step` of a result (default: the last recorded);
     NotRecorded when the file has none or not that step."""
-    from engine.contacts import KIND_NAMES, MODE_NAMES
+    from engine.contact.constraints import KIND_NAMES, MODE_NAMES
 
     if not result.contacts_recorded:
         raise NotRecorded("the scene set analysis.record_contacts to false")
@@ -236,7 +236,7 @@ def fos_controls(build: BuildResult) -> StrengthReductionControls:
     """Strength-reduction controls from the scene's `analysis.factor_of_safety` (built by
     the schema with the engine's defaults): times, tolerance, bounds, the weakened joint
     materials and the watched blocks."""
-    from engine.analyses import StrengthReductionControls
+    from engine.analyses.strength_reduction import StrengthReductionControls
 
     return build.factor_of_safety or StrengthReductionControls()
 
@@ -264,7 +264,7 @@ def _watched_names(build: BuildResult, watch_blocks: Any) -> list[str]:
 def seismic_controls(build: BuildResult) -> SeismicCoefficientControls:
     """Critical seismic coefficient controls from the scene's
     `analysis.critical_seismic_coefficient` (engine defaults when absent)."""
-    from engine.analyses import SeismicCoefficientControls
+    from engine.analyses.strength_reduction import SeismicCoefficientControls
 
     return build.seismic_coefficient or SeismicCoefficientControls()
 
@@ -282,7 +282,7 @@ def seismic_document(result: SeismicCoefficientResult, build: BuildResult) -> di
 def kinematic_result(scene: Any) -> KinematicResult:
     """Markland tests of the scene's joints against its `slope_face` (a Scene, path, JSON
     text or dict; SceneError without a slope face or joints). Nothing is cut."""
-    from engine.kinematics import kinematic_analysis
+    from engine.analyses.kinematics import kinematic_analysis
     from schemas.convert import kinematic_inputs
 
     sets, face = kinematic_inputs(scene)

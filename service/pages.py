@@ -257,7 +257,7 @@ def _kinematics_section(part: dict[str, Any] | None) -> str:
                  f"direction), φ {slope['friction_angle']:g}° for joints without their own; "
                  f"lateral limits ±{lim['planar']:g}° planar, ±{lim['flexural_toppling']:g}° "
                  f"flexural, ±{lim['direct_toppling']:g}° direct toppling. Markland tests "
-                 "(engine.kinematics): what <i>can</i> move, not whether it does.</p>"]
+                 "(engine.analyses.kinematics): what <i>can</i> move, not whether it does.</p>"]
     adm = doc["admissible"]
     out.append(_table(([title, ", ".join("/".join(x) if isinstance(x, list) else x
                                          for x in adm[key]) or "none"]

@@ -60,8 +60,8 @@ class Process:
 
 def _simulation(build: BuildResult, scene_text: str, job_dir: Path,
                 ctx: TaskContext) -> Outcome:
-    from engine.results import ResultWriter
-    from engine.simulation import STATUS_CANCELLED, STATUS_COMPLETED, Progress, run
+    from engine.results.writer import ResultWriter
+    from engine.step.simulation import STATUS_CANCELLED, STATUS_COMPLETED, Progress, run
     from schemas.scene import SCHEMA_VERSION
 
     def progress(p: Progress) -> None:
@@ -93,7 +93,7 @@ def _bisection_job(build: BuildResult, job_dir: Path, ctx: TaskContext, artifact
     """A bisection analysis as a job (factor of safety, critical seismic coefficient):
     progress per trial, cancel between trials with the trials so far kept in `artifact`,
     the analysis's document written atomically; `answer(result)` names its number."""
-    from engine.analyses import TrialRun
+    from engine.analyses.strength_reduction import TrialRun
 
     runs: list[TrialRun] = []
 
@@ -123,7 +123,7 @@ def _bisection_job(build: BuildResult, job_dir: Path, ctx: TaskContext, artifact
 
 def _factor_of_safety(build: BuildResult, scene_text: str, job_dir: Path,
                       ctx: TaskContext) -> Outcome:
-    from engine.analyses import factor_of_safety
+    from engine.analyses.strength_reduction import factor_of_safety
 
     return _bisection_job(build, job_dir, ctx, "fos.json", factor_of_safety,
                           fos_controls(build), fos_document, "reduction factor",
@@ -132,7 +132,7 @@ def _factor_of_safety(build: BuildResult, scene_text: str, job_dir: Path,
 
 def _critical_seismic(build: BuildResult, scene_text: str, job_dir: Path,
                       ctx: TaskContext) -> Outcome:
-    from engine.analyses import critical_seismic_coefficient
+    from engine.analyses.strength_reduction import critical_seismic_coefficient
 
     return _bisection_job(build, job_dir, ctx, "seismic.json", critical_seismic_coefficient,
                           seismic_controls(build), seismic_document, "kh",
@@ -143,7 +143,7 @@ def _kinematics(build: BuildResult | None, scene_text: str, job_dir: Path,
                 ctx: TaskContext) -> Outcome:
     import time
 
-    from engine.stereonet import plot_stereonet
+    from engine.analyses.stereonet import plot_stereonet
     from service.documents import kinematic_result, kinematics_document
 
     start = time.perf_counter()

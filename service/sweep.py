@@ -1,24 +1,24 @@
 """Sweeps and Monte Carlo analyses of a scene: realisations from a seed, one factor of
 safety each.
 
-A :class:`SweepSpec` varies the scene's parameters (:class:`Parameter`: joint friction
-angle and cohesion, a joint set's orientation with Fisher dispersion, water level, kh, bolt
+A :class:`SweepSpec` varies the scene's parameters (:class:`Parameter`: joint friction angle
+and cohesion, a joint set's orientation with Fisher dispersion, water level, kh, bolt
 pretension and capacity, penalty, time step), each given as a distribution or as a fixed
-list of values (a study: the value parameters form a grid). Each random parameter draws
-from its own stream of (seed, parameter name) (`friction_angle` from the seed itself, as
-the friction-only sweeps always did), so realisation k is the same whatever N and adding a
-parameter leaves the others' draws as they were. A realisation is the scene with its
-values written in (:func:`realisation_scene`; an orientation re-cuts the blocks), evaluated
-by the engine's strength reduction (`dda`: :func:`engine.analyses.factor_of_safety`) or by
-the analytic wedge (`analytic`: eq. 51 on the scene's two joints; friction and orientation
-only), and written to `OUT/realisations/NNNNN.json` (or, for the service's jobs, to a
-folder shared by every job of the same sweep) as soon as it is done; a re-run with the same
-scene and spec skips those already there. A spec may cover a share of the N (`only`): jobs
-run shares and :func:`merge_documents` joins them. The aggregate (probability of failure,
-histogram, CDF, sensitivity to each parameter; engine.reliability) goes to
-`OUT/sweep.json`, beside the analytic sweep of the same realisations when the scene is a
-two-joint wedge and every parameter is one eq. 51 takes.
-"""
+list of values (a study: the value parameters form a grid). Each random parameter draws from
+its own stream of (seed, parameter name) (`friction_angle` from the seed itself, as the
+friction-only sweeps always did), so realisation k is the same whatever N and adding a
+parameter leaves the others' draws as they were. A realisation is the scene with its values
+written in (:func:`realisation_scene`; an orientation re-cuts the blocks), evaluated by the
+engine's strength reduction (`dda`:
+:func:`engine.analyses.strength_reduction.factor_of_safety`) or by the analytic wedge
+(`analytic`: eq. 51 on the scene's two joints; friction and orientation only), and written
+to `OUT/realisations/NNNNN.json` (or, for the service's jobs, to a folder shared by every
+job of the same sweep) as soon as it is done; a re-run with the same scene and spec skips
+those already there. A spec may cover a share of the N (`only`): jobs run shares and
+:func:`merge_documents` joins them. The aggregate (probability of failure, histogram, CDF,
+sensitivity to each parameter; engine.analyses.reliability) goes to `OUT/sweep.json`, beside
+the analytic sweep of the same realisations when the scene is a two-joint wedge and every
+parameter is one eq. 51 takes. """
 
 from __future__ import annotations
 
@@ -36,15 +36,15 @@ from typing import Any
 
 import numpy as np
 
-from engine.jointstats import Distribution, fisher_angles_of, scatter_about
-from engine.kinematics import normal
-from engine.model import DEFAULT_FRICTION_ANGLE_DEG
-from engine.reliability import (
+from engine.analyses.jointstats import Distribution, fisher_angles_of, scatter_about
+from engine.analyses.kinematics import normal
+from engine.analyses.reliability import (
     aggregate,
     truncated_normal,
     wedge_factor_of_safety,
     wedge_geometry,
 )
+from engine.model import DEFAULT_FRICTION_ANGLE_DEG
 from schemas.scene import ANALYTIC_QUANTITIES, SweepParameterSpec, sweep_truncation
 from service.documents import finite, write_json_atomic
 
@@ -380,7 +380,7 @@ def dda_fs(scene: dict[str, Any],
     """The engine's factor of safety of a realisation's scene (strength reduction);
     Stopped between trials once `should_stop()`. A realisation whose values make the scene
     invalid (e.g. a pretension above the capacity) is recorded with the problem, no FS."""
-    from engine.analyses import TrialRun, factor_of_safety
+    from engine.analyses.strength_reduction import TrialRun, factor_of_safety
     from schemas.convert import build_model
     from schemas.errors import SceneError
     from service.documents import fos_controls

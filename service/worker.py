@@ -93,8 +93,8 @@ def run(args: argparse.Namespace) -> int:
     from redis.exceptions import ConnectionError as RedisConnectionError
     from rq import Queue
 
-    import engine.results  # noqa: F401
-    import engine.simulation  # noqa: F401
+    import engine.results.writer  # noqa: F401
+    import engine.step.simulation  # noqa: F401
     import schemas.convert  # noqa: F401
     import service.jobs  # noqa: F401
     from service.backends.rq_worker import PolyddaWorker

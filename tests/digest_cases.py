@@ -17,9 +17,9 @@ from typing import Any
 
 import numpy as np
 
+from engine.geometry.shapes import box
 from engine.model import AnalysisControls, Block, FixedPoint, JointMaterial, Model
-from engine.shapes import box
-from engine.simulation import run
+from engine.step.simulation import run
 
 ROOT = Path(__file__).resolve().parents[1]
 DIGESTS = ROOT / "tests" / "data" / "step_digests.json"
@@ -145,7 +145,7 @@ class _Digest:
 
 def _fos_incline() -> dict[str, Any]:
     """Strength reduction of the stable incline (φ 35°), short observation window."""
-    from engine.analyses import StrengthReductionControls, factor_of_safety
+    from engine.analyses.strength_reduction import StrengthReductionControls, factor_of_safety
     from tests.test_simulation import incline_model
 
     res = factor_of_safety(incline_model(35.0, dt=0.01), StrengthReductionControls(

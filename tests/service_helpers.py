@@ -286,7 +286,7 @@ def synthetic_job(data_dir: Path, n_blocks: int = 1000, n_steps: int = 100,
     `contacts`, written by the engine's ResultWriter), put straight into the job table of
     `data_dir`; `(job id, its result.h5)`."""
     from benchmarks.bench_results import FrameSource, grid_model
-    from engine.results import ResultWriter
+    from engine.results.writer import ResultWriter
     from service.backends.store import JobStore
     from service.settings import Settings
 

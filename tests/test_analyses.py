@@ -9,9 +9,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from engine.analyses import StrengthReductionControls, factor_of_safety
+from engine.analyses.strength_reduction import StrengthReductionControls, factor_of_safety
 from engine.model import JointMaterial
-from engine.simulation import STATUS_COMPLETED, run
+from engine.step.simulation import STATUS_COMPLETED, run
 from schemas.convert import build_model
 from service.cli import main
 from tests.test_simulation import FrameLog, incline_model

@@ -8,10 +8,10 @@ import pytest
 import scipy.sparse as sp
 from scipy.sparse.csgraph import connected_components
 
-from engine import assembly as asm
-from engine import solver
-from engine._assembly_kernels import fill_bsr, unit_contact_terms
-from engine.solver import (
+from engine.dynamics import assembly as asm
+from engine.dynamics import solver
+from engine.dynamics._assembly_kernels import fill_bsr, unit_contact_terms
+from engine.dynamics.solver import (
     BlockJacobi,
     SolveError,
     block_jacobi,

@@ -12,10 +12,10 @@ from typing import Any
 import numpy as np
 import pytest
 
-from engine.bolts import BROKEN, ELASTIC, YIELDED
-from engine.plots import plot_all
-from engine.results import ResultWriter, open_result
-from engine.simulation import STATUS_COMPLETED, run
+from engine.loads.bolts import BROKEN, ELASTIC, YIELDED
+from engine.results.plots import plot_all
+from engine.results.writer import ResultWriter, open_result
+from engine.step.simulation import STATUS_COMPLETED, run
 from schemas.convert import build_model, pattern_bolts
 from schemas.errors import Problems, SceneError
 from schemas.scene import BoltPatternSpec, load_scene
@@ -216,7 +216,7 @@ def test_bolt_pattern_in_a_scene() -> None:
 
 def test_resumed_run_with_a_yielding_bolt_is_bit_for_bit(tmp_path: Path) -> None:
     """A checkpoint carries the bolts' plastic elongation, shear force and state."""
-    from engine.simulation import Simulation
+    from engine.step.simulation import Simulation
 
     model = build_model(_tie_back(4000.0, 4000.0)).model
     full, half = Simulation(model), Simulation(model)
@@ -238,8 +238,8 @@ def test_bolt_between_two_free_blocks_couples_them() -> None:
     between their facing faces: internal forces (momentum stays zero) and a two-body
     oscillator about elongation −T/k at ω = √(2k/m): the bolt shortens to −2T/k at t = π/ω
     (a bolt seen by each block alone, without the coupling terms, would give √(k/m))."""
+    from engine.geometry.shapes import box
     from engine.model import AnalysisControls, Block, Bolt, Model
-    from engine.shapes import box
 
     k, t0, m = 1e6, 1000.0, 2600.0
     model = Model(blocks=[Block(box([0, 0, 0], [1, 1, 1]), "a"),

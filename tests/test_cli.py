@@ -11,7 +11,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from engine.geometry import dip_normal
+from engine.geometry.polyhedron import dip_normal
 from service.cli import main
 from tests.test_results import vtk_step
 
@@ -220,7 +220,7 @@ def test_run_writes_result_summary_and_vtkhdf(capsys: pytest.CaptureFixture[str]
     assert np.linalg.norm(wedge["displacement"]) == pytest.approx(0.5 * 4.718485 * 0.01,
                                                                   rel=0.02)
 
-    from engine.results import open_result
+    from engine.results.writer import open_result
 
     with open_result(out) as res:
         assert res.status == "completed"

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from engine.contacts import ContactSet, assign_joint_materials
+from engine.contact.constraints import ContactSet, assign_joint_materials
 
 
 def make_set(block_i, block_j, face_tag) -> ContactSet:

@@ -7,14 +7,15 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from engine.cutting import (
+from engine.geometry.cutting import (
     CutResult,
     convex_decomposition,
     cut_blocks,
     disc_polygon,
     joint_set_planes,
 )
-from engine.geometry import (
+from engine.geometry.joints import JointPlane
+from engine.geometry.polyhedron import (
     FACE_TAG_BOUNDARY,
     Polyhedron,
     dip_normal,
@@ -23,7 +24,6 @@ from engine.geometry import (
     mass_properties,
     winding_numbers,
 )
-from engine.model import JointPlane
 
 # --------------------------------------------------------------------------- helpers
 

@@ -11,7 +11,7 @@ from hypothesis import strategies as st
 from scipy.spatial import ConvexHull
 from scipy.spatial.transform import Rotation
 
-from engine.contacts import (
+from engine.contact.constraints import (
     EDGE_EDGE,
     LOCKED,
     OPEN,
@@ -21,16 +21,16 @@ from engine.contacts import (
     ContactSet,
     assign_joint_materials,
 )
-from engine.cutting import convex_decomposition
-from engine.detection import aabb_pairs, decode_feature, detect_contacts, feature_code
-from engine.geometry import (
+from engine.contact.detection import aabb_pairs, decode_feature, detect_contacts, feature_code
+from engine.geometry.cutting import convex_decomposition
+from engine.geometry.polyhedron import (
     ConvexPiece,
     Polyhedron,
     dip_normal,
     face_normals_areas,
     faces_to_csr,
 )
-from engine.shapes import prism
+from engine.geometry.shapes import prism
 
 # --------------------------------------------------------------------------- shape helpers
 
@@ -805,7 +805,7 @@ def test_narrow_phase_in_slices_finds_the_same_contacts(monkeypatch):
 
     import numba
 
-    import engine.detection as det
+    import engine.contact.detection as det
 
     if numba.config.NUMBA_NUM_THREADS < 2:
         pytest.skip("one numba thread: the narrow phase never runs in slices")

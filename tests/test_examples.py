@@ -8,8 +8,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from engine.frame import energy_created
-from engine.simulation import STATUS_COMPLETED, run
+from engine.step.frame import energy_created
+from engine.step.simulation import STATUS_COMPLETED, run
 from schemas.convert import build_model
 from tests.test_simulation import FrameLog
 

@@ -9,14 +9,14 @@ import pytest
 import trimesh
 from scipy.spatial.transform import Rotation
 
-from engine.geometry import (
+from engine.geometry.polyhedron import (
     Polyhedron,
     dip_normal,
     normal_to_dip,
     polyhedron_problems,
     rotation_matrix,
 )
-from engine.shapes import HEXAHEDRON_FACES, box, convex_hull, prism
+from engine.geometry.shapes import HEXAHEDRON_FACES, box, convex_hull, prism
 
 L_BASE = [(0, 0), (3, 0), (3, 1), (1, 1), (1, 3), (0, 3)]  # L in plan, reflex corner (1, 1)
 
@@ -171,7 +171,7 @@ def test_polyhedron_from_faces_keeps_tags_and_moves() -> None:
 
 def test_width_is_the_thinnest_extent() -> None:
     """A cube is as wide as its side, a plate as its thickness, an L prism as its arms."""
-    from engine.cutting import convex_decomposition
+    from engine.geometry.cutting import convex_decomposition
 
     assert box([0, 0, 0], [1, 1, 1]).width == pytest.approx(1.0)
     assert box([0, 0, 0], [5, 5, 0.05]).width == pytest.approx(0.05)

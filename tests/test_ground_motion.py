@@ -9,8 +9,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from engine.model import GroundMotion
-from engine.simulation import STATUS_COMPLETED, run
+from engine.loads.seismic import GroundMotion
+from engine.step.simulation import STATUS_COMPLETED, run
 from schemas.convert import build_model
 from schemas.errors import SceneError
 from schemas.scene import load_scene

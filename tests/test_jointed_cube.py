@@ -10,8 +10,8 @@ import numpy as np
 import pytest
 
 from benchmarks.bench_jointed_cube import scene
-from engine.contact_step import detect
-from engine.simulation import Simulation
+from engine.contact.search import detect
+from engine.step.simulation import Simulation
 from schemas.convert import build_model, overlap_depth
 
 SPACING = 1.5
@@ -54,7 +54,7 @@ def test_neighbours_share_faces_and_never_overlap(cube: object) -> None:
     assert area and max(abs(v) for v in area.values()) < 1e-9 * 36.0
     lo = np.array([p.bounds[0] for p in blocks]) - 1e-9
     hi = np.array([p.bounds[1] for p in blocks]) + 1e-9
-    from engine.detection import aabb_pairs
+    from engine.contact.detection import aabb_pairs
 
     pairs = aabb_pairs(lo, hi)
     assert len(pairs) > len(blocks)

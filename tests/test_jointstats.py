@@ -9,14 +9,14 @@ import numpy as np
 import pytest
 from scipy import stats
 
-from engine.jointstats import (
+from engine.analyses.jointstats import (
     Distribution,
     fisher_angles,
     fisher_fit,
     fisher_orientations,
     plane_positions,
 )
-from engine.kinematics import normal
+from engine.analyses.kinematics import normal
 
 N = 4000
 

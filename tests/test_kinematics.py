@@ -11,7 +11,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from engine.kinematics import (
+from engine.analyses.kinematics import (
     JointSet,
     LateralLimits,
     SlopeFace,
@@ -19,7 +19,7 @@ from engine.kinematics import (
     kinematic_analysis,
     normal,
 )
-from engine.stereonet import stereonet_data
+from engine.analyses.stereonet import stereonet_data
 from schemas.convert import kinematic_inputs
 from schemas.errors import SceneError
 from service.cli import main

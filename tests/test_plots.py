@@ -11,7 +11,7 @@ import pytest
 
 pytest.importorskip("matplotlib")
 
-from engine.plots import (  # noqa: E402
+from engine.results.plots import (  # noqa: E402
     energy_residual,
     plot_all,
     plot_displacements,
@@ -21,8 +21,8 @@ from engine.plots import (  # noqa: E402
     plot_snapshot,
     trend_plunge,
 )
-from engine.results import ResultWriter, open_result  # noqa: E402
-from engine.summary import format_summary, summarize  # noqa: E402
+from engine.results.summary import format_summary, summarize  # noqa: E402
+from engine.results.writer import ResultWriter, open_result  # noqa: E402
 
 sys.path.insert(0, str(Path(__file__).parent))
 from test_results import make_frame, two_block_model, write_run  # noqa: E402
@@ -121,7 +121,7 @@ def test_summary(result_file: Path) -> None:
 
 
 def test_no_pyplot_state(result_file: Path, tmp_path: Path) -> None:
-    code = ("import sys; from engine.plots import plot_all; "
+    code = ("import sys; from engine.results.plots import plot_all; "
             f"plot_all({str(result_file)!r}, {str(tmp_path)!r}); "
             "assert 'matplotlib.pyplot' not in sys.modules")
     subprocess.run([sys.executable, "-W", "error", "-c", code], check=True,

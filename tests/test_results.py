@@ -18,11 +18,11 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from engine.contacts import ContactSet
-from engine.frame import Frame
-from engine.geometry import Polyhedron
+from engine.contact.constraints import ContactSet
+from engine.geometry.polyhedron import Polyhedron
 from engine.model import Block, Model
-from engine.results import ResultWriter, open_result, point_velocities, recover_result
+from engine.results.writer import ResultWriter, open_result, point_velocities, recover_result
+from engine.step.frame import Frame
 
 CUBE_FACES = [[0, 3, 2, 1], [4, 5, 6, 7], [0, 1, 5, 4], [1, 2, 6, 5], [2, 3, 7, 6], [3, 0, 4, 7]]
 
@@ -328,7 +328,7 @@ KILL_SCRIPT = textwrap.dedent("""
     import sys, time
     sys.path.insert(0, {tests!r})
     from test_results import two_block_model, make_frame
-    from engine.results import ResultWriter
+    from engine.results.writer import ResultWriter
     model = two_block_model()
     w = ResultWriter({path!r}, flush_every=1)
     w.begin(model, "{{}}")

@@ -16,11 +16,11 @@ import h5py
 import numpy as np
 import pytest
 
-from engine.frame import energy_created
-from engine.motion import current_vertices
-from engine.plots import energy_residual
-from engine.results import ResultWriter, open_result, recover_result
-from engine.simulation import STATUS_COMPLETED, Simulation, run
+from engine.dynamics.motion import current_vertices
+from engine.results.plots import energy_residual
+from engine.results.writer import ResultWriter, open_result, recover_result
+from engine.step.frame import energy_created
+from engine.step.simulation import STATUS_COMPLETED, Simulation, run
 from schemas.convert import build_model
 from tests.test_results import write_run
 
@@ -36,7 +36,7 @@ def _model(name: str, **controls: object):
 
 
 def _surface_vertices(model, stacked: np.ndarray) -> list[np.ndarray]:
-    """Split `engine.motion.current_vertices` per block, surface vertices only."""
+    """Split `engine.dynamics.motion.current_vertices` per block, surface vertices only."""
     counts = [len(b.polyhedron.vertices) for b in model.blocks]
     parts = np.split(stacked, np.cumsum(counts)[:-1])
     return [p[b.polyhedron.surface_vertex_ids] for p, b in zip(parts, model.blocks, strict=True)]
@@ -50,7 +50,7 @@ def _surface_vertices(model, stacked: np.ndarray) -> list[np.ndarray]:
 def test_vertices_from_transforms_equal_engine_vertices(
         tmp_path: Path, scene: str, block_model: str, n_steps: int) -> None:
     """At every recorded step, `centroid + affine (X0 - c0)` read back from the file is the
-    engine's own `engine.motion.current_vertices` captured during the run (to 1e-9 m)."""
+    engine's own `engine.dynamics.motion.current_vertices` captured during the run (to 1e-9 m)."""
     model = _model(scene, block_model=block_model)
     sim = Simulation(model)
     path = tmp_path / "run.h5"

@@ -13,7 +13,7 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from engine.geometry import dip_normal, normal_to_dip
+from engine.geometry.polyhedron import dip_normal, normal_to_dip
 from schemas import (
     SCHEMA_VERSION,
     Limits,
@@ -55,7 +55,7 @@ def test_defaults_serve_a_small_scene(cube_on_base: dict) -> None:
     assert m.gravity.tolist() == [0.0, 0.0, -9.81]
     c = m.controls
     assert (c.duration, c.time_step, c.penalty, c.dynamic_ratio) == (1.0, 1e-3, None, 1.0)
-    from engine.system import default_penalty
+    from engine.dynamics.system import default_penalty
 
     assert default_penalty(m) == 5e10  # the 1 m cube: 10 × 2 × 2600 kg / (1 ms)²
     assert c.contact_damping == 0.5
@@ -463,7 +463,7 @@ def test_cut_block_estimate_before_cutting(monkeypatch: pytest.MonkeyPatch) -> N
     def no_cutting(*args: Any, **kwargs: Any) -> None:
         raise AssertionError("the domain was cut")
 
-    monkeypatch.setattr("engine.cutting.cut_blocks", no_cutting)
+    monkeypatch.setattr("engine.geometry.cutting.cut_blocks", no_cutting)
     for j in rock["joints"]:
         j["spacing"] = 0.3
     assert problems_of(rock) == [

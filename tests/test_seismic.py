@@ -9,10 +9,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from engine.model import Block, Model, SeismicLoad
-from engine.shapes import box
-from engine.simulation import STATUS_COMPLETED, run
-from engine.system import build_system
+from engine.dynamics.system import build_system
+from engine.geometry.shapes import box
+from engine.loads.seismic import SeismicLoad
+from engine.model import Block, Model
+from engine.step.simulation import STATUS_COMPLETED, run
 from schemas.convert import build_model
 from schemas.errors import SceneError
 from schemas.scene import load_scene

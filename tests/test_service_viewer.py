@@ -18,8 +18,8 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from engine.plots import plot_snapshot
-from engine.results import open_result
+from engine.results.plots import plot_snapshot
+from engine.results.writer import open_result
 from service.frames import decode_binary
 from service.pages import trend_plunge
 from service.settings import Settings
@@ -248,7 +248,7 @@ def test_viewer_and_report_pages_use_only_local_assets(cube_job: Any) -> None:
     assert len(linked) >= 3 and all(c.get(i).status_code == 200 for i in linked)
     assert "cube" in text and "fixed" in text
     # the blocks at the last step: inline, drawn from the result file's last step (the
-    # same PNG engine.plots draws from it; not the first step's) and not repeated in Plots
+    # same PNG engine.results.plots draws from it; not the first step's) and not repeated in Plots
     snap = re.search(r"<figure id='snapshot-figure'><img src=\"data:image/png;base64,([^\"]+)\"",
                      text)
     assert snap is not None and "snapshot_final.png" not in text

@@ -5,9 +5,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from engine import contact_step, simulation, stepping
-from engine.contacts import OPEN
-from engine.frame import energy_created
+from engine.contact import search as contact_step
+from engine.contact.constraints import OPEN
+from engine.dynamics.motion import current_polyhedra
+from engine.geometry.shapes import box, hexahedron, oriented_box
 from engine.model import (
     AnalysisControls,
     Block,
@@ -17,9 +18,9 @@ from engine.model import (
     Model,
     PointLoad,
 )
-from engine.motion import current_polyhedra
-from engine.shapes import box, hexahedron, oriented_box
-from engine.simulation import STATUS_COMPLETED, STATUS_FAILED, Simulation, run
+from engine.step import simulation, stepping
+from engine.step.frame import energy_created
+from engine.step.simulation import STATUS_COMPLETED, STATUS_FAILED, Simulation, run
 
 G = 9.81
 RHO = 2600.0
@@ -391,8 +392,8 @@ def test_tensile_strength_holds_hanging_block(tension: float, holds: bool) -> No
 def _cut_rock_mass(friction_deg: float) -> Model:
     """A 10 m cube cut by three joint sets at 5 m (37 blocks, every one touching its
     neighbours) resting on a fixed base slab."""
-    from engine.cutting import cut_blocks, joint_set_planes
-    from engine.geometry import dip_normal
+    from engine.geometry.cutting import cut_blocks, joint_set_planes
+    from engine.geometry.polyhedron import dip_normal
 
     domain = box([0, 0, 0], [10, 10, 10])
     joints = []
@@ -462,7 +463,7 @@ def test_soft_penalty_is_reported_not_silent() -> None:
 
 def test_default_penalty_is_derived_from_the_scene() -> None:
     """No penalty given: max(E L, 10 × 2 m / Δt²) of the median block, to one figure."""
-    from engine.system import build_system, default_penalty
+    from engine.dynamics.system import build_system, default_penalty
 
     m = incline_model(35.0, dt=1e-3, penalty=None)  # 2600 kg cube: 10 × 2 × 2600 / 1e-6
     assert default_penalty(m) == pytest.approx(5e10)

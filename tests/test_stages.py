@@ -11,8 +11,12 @@ import numpy as np
 import pytest
 import scipy.linalg as sla
 
-from engine import assembly as asm
-from engine._motion_kernels import (
+from engine.contact._open_close_kernels import contact_loads, step_results, update_modes
+from engine.contact.constraints import LOCKED, OPEN, SLIDING
+from engine.dynamics import assembly as asm
+from engine.dynamics._solver_kernels import cholesky, cholesky_solve, invert_spd_blocks, pcg_bsr
+from engine.dynamics.state import load_state, save_state
+from engine.geometry._transform_kernels import (
     T0,
     TA,
     block_vertices,
@@ -20,11 +24,7 @@ from engine._motion_kernels import (
     point_motions,
     rotation_matrices,
 )
-from engine._open_close_kernels import contact_loads, step_results, update_modes
-from engine._solver_kernels import cholesky, cholesky_solve, invert_spd_blocks, pcg_bsr
-from engine.contacts import LOCKED, OPEN, SLIDING
-from engine.simulation import Simulation, run
-from engine.state import load_state, save_state
+from engine.step.simulation import Simulation, run
 from tests.digest_cases import CASES
 
 ENGINE = Path(__file__).resolve().parents[1] / "engine"
@@ -222,7 +222,7 @@ def test_reseat_loss_books_what_springs_lost_between_steps_not_gains() -> None:
     with is booked as dissipation; a spring starting with more is left to the watchdog."""
     from types import SimpleNamespace
 
-    from engine.open_close import reseat_loss
+    from engine.contact.open_close import reseat_loss
 
     system = SimpleNamespace(kn=1e9, ks=5e8)
     t = SimpleNamespace(d0=np.array([-1e-5, 2e-6]), shear0=np.array([[2e-6, 0.0, 0.0],
@@ -256,8 +256,8 @@ def test_dashpots_after_the_step_go_to_rings_and_rebounds() -> None:
     sliding one way all through the step (sliding, starting to topple), is not."""
     from types import SimpleNamespace
 
-    from engine.contacts import ContactSet
-    from engine.damping import ringing
+    from engine.contact.constraints import ContactSet
+    from engine.contact.damping import ringing
 
     c = 4
     contacts = ContactSet(

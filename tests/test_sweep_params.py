@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 from scipy import stats
 
-from engine.kinematics import normal
+from engine.analyses.kinematics import normal
 from schemas.convert import build_model
 from schemas.errors import SceneError
 from schemas.scene import load_scene

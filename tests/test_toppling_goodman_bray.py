@@ -16,10 +16,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from engine.analyses import trial
-from engine.geometry import normal_to_dip
-from engine.simulation import STATUS_COMPLETED, run
-from engine.toppling import column_heights, critical_friction_angle, lever_arms
+from engine.analyses.strength_reduction import trial
+from engine.analyses.toppling import column_heights, critical_friction_angle, lever_arms
+from engine.geometry.polyhedron import normal_to_dip
+from engine.step.simulation import STATUS_COMPLETED, run
 from schemas.convert import build_model
 from service.documents import fos_controls
 from tests.test_cutting import check_no_overlap

@@ -12,7 +12,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from engine.toppling import (
+from engine.analyses.toppling import (
     SLIDE,
     STABLE,
     TOPPLE,

@@ -9,8 +9,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from engine.simulation import STATUS_COMPLETED, run
-from engine.system import default_penalty
+from engine.dynamics.system import default_penalty
+from engine.step.simulation import STATUS_COMPLETED, run
 from schemas.convert import build_model
 from tests.test_simulation import DOWN_DIP, UP_NORMAL, FrameLog, incline_model
 

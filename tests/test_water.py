@@ -11,11 +11,10 @@ from typing import Any
 import numpy as np
 import pytest
 
-from engine.model import Water
-from engine.plots import plot_all
-from engine.results import ResultWriter, open_result
-from engine.simulation import STATUS_COMPLETED, run
-from engine.water import overlap, quadrature
+from engine.loads.water import Water, overlap, quadrature
+from engine.results.plots import plot_all
+from engine.results.writer import ResultWriter, open_result
+from engine.step.simulation import STATUS_COMPLETED, run
 from schemas.convert import build_model
 from schemas.errors import SceneError
 from schemas.scene import load_scene

@@ -70,7 +70,7 @@ def _opens_plainly(path: Path) -> bool:
 
 def readable_result(job: JobRecord, settings: Settings) -> tuple[Path, bool]:
     """The job's result.h5 as a file any HDF5 reader opens, and whether it is a recovered
-    copy (engine.results.recover_result: the steps flushed before the run was killed)."""
+    copy (engine.results.writer.recover_result: the steps flushed before the run was killed)."""
     path = artifact(job, settings, RESULT_FILE)
     copy = path.with_name(RECOVERED_FILE)
     with _lock(job.id + "/h5"):
@@ -78,7 +78,7 @@ def readable_result(job: JobRecord, settings: Settings) -> tuple[Path, bool]:
             return copy, True
         if _opens_plainly(path):
             return path, False
-        from engine.results import recover_result
+        from engine.results.writer import recover_result
 
         tmp = path.with_name(f".{RECOVERED_FILE}.{os.getpid()}.tmp")
         with contextlib.suppress(FileNotFoundError):
@@ -124,7 +124,7 @@ def results_document(job: JobRecord, settings: Settings, root: str) -> dict[str,
     if main.is_file():
         doc[p.result_key] = json.loads(main.read_text(encoding="utf-8"))
     elif (d / RESULT_FILE).is_file():  # a run killed before it could write its summary
-        from engine.summary import summarize
+        from engine.results.summary import summarize
 
         doc[p.result_key] = summarize(d / RESULT_FILE)
     links = []
@@ -149,13 +149,13 @@ def results_document(job: JobRecord, settings: Settings, root: str) -> dict[str,
 
 
 def plots(job: JobRecord, settings: Settings) -> list[Path]:
-    """The job's PNG plots, made on first request (engine.plots.plot_all)."""
+    """The job's PNG plots, made on first request (engine.results.plots.plot_all)."""
     h5 = artifact(job, settings, RESULT_FILE)  # the engine's reader opens a killed run's file
     out = settings.job_dir(job.id) / "plots"
     done = out / ".done"
     with _lock(job.id + "/plots"):
         if not done.exists():
-            from engine.plots import plot_all
+            from engine.results.plots import plot_all
 
             try:
                 plot_all(h5, out)
@@ -170,7 +170,7 @@ def plots(job: JobRecord, settings: Settings) -> list[Path]:
 def contacts(job: JobRecord, settings: Settings, step: int | None) -> dict[str, Any]:
     """service.documents.result_contacts_document of the job's result (404 / 422 when the
     file has no contacts or not that step)."""
-    from engine.results import open_result
+    from engine.results.writer import open_result
 
     h5 = artifact(job, settings, RESULT_FILE)
     with open_result(h5) as r:
@@ -204,7 +204,7 @@ def live_result(job: JobRecord, settings: Settings) -> Path:
 def frames(job: JobRecord, settings: Settings, start: int, stop: int | None, stride: int,
            with_geometry: bool, contacts: bool) -> Frames:
     """service.frames.frames of the job's result (running or not); 422 for a bad range."""
-    from engine.results import open_result
+    from engine.results.writer import open_result
 
     path = live_result(job, settings)
     try:
@@ -234,7 +234,7 @@ def report(job: JobRecord, settings: Settings, scene_text: str, root: str) -> st
     meta: dict[str, Any] = {}
     snapshot = None
     if (d / RESULT_FILE).is_file():
-        from engine.results import open_result
+        from engine.results.writer import open_result
 
         names = [p.name for p in plots(job, settings)]
         with open_result(d / RESULT_FILE) as r:
@@ -288,7 +288,7 @@ def _figure(path: Path, newer_than: Path | None, make: Any) -> str:
 
 
 def kinematics_part(job_dir: Path, scene: dict[str, Any]) -> dict[str, Any]:
-    """The kinematic screening of the scene (engine.kinematics: its joints against its
+    """The kinematic screening of the scene (engine.analyses.kinematics: its joints against its
     slope face) and its stereonet as a data: URI (`doc`, `src`); or `reason` when the
     scene gives no slope face or no joints."""
     from schemas.errors import SceneError
@@ -308,7 +308,7 @@ def kinematics_part(job_dir: Path, scene: dict[str, Any]) -> dict[str, Any]:
     if made.is_file():
         src = png_uri(made)
     else:
-        from engine.stereonet import plot_stereonet
+        from engine.analyses.stereonet import plot_stereonet
 
         src = _figure(job_dir / "report" / "stereonet.png", None,
                       lambda path: plot_stereonet(result, path))
@@ -328,7 +328,7 @@ def sweep_part(job_dir: Path) -> dict[str, Any] | None:
         aggs["analytic (eq. 51)"] = doc["analytic"]
     src = None
     if any((a.get("histogram") or {}).get("counts") for a in aggs.values()):
-        from engine.plots import plot_fs_distribution
+        from engine.results.plots import plot_fs_distribution
 
         src = _figure(job_dir / "report" / "sweep.png", path,
                       lambda out: plot_fs_distribution(aggs, out))
@@ -340,7 +340,7 @@ def fos_figure(fos: Path) -> str:
     png = fos.with_name("fos_trials.png")
     with _lock(str(fos) + "/plot"):
         if not png.is_file() or png.stat().st_mtime < fos.stat().st_mtime:
-            from engine.plots import plot_fos_trials
+            from engine.results.plots import plot_fos_trials
 
             doc = json.loads(fos.read_text(encoding="utf-8"))
             fs = doc.get("factor_of_safety")

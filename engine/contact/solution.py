@@ -1,0 +1,39 @@
+"""What a contact solver returns for one step: the block displacements and the contacts'
+converged modes, gaps, forces and works (the same document whichever solver ran)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from engine.contact.constraints import ContactSet
+
+
+@dataclass
+class StepResult:
+    """The converged solution of one step. Shapes: `n` blocks, `c` contacts.
+
+    `d (n, 12)` block displacement increments; the step's `contacts` with their converged
+    modes; `gap1 (c,)` m normal distance at the end of the step; `shear (c, 3)` m the shear
+    springs' stretch (locked); `slip (c, 3)` m relative tangential displacement;
+    `normal_force (c,)` N (compression positive); `shear_force (c, 3)` N on block i; the
+    friction work and the implicit springs' dissipation (J); `broken (c,)` bonds lost.
+    """
+
+    d: np.ndarray
+    contacts: ContactSet
+    gap1: np.ndarray
+    shear: np.ndarray
+    slip: np.ndarray
+    normal_force: np.ndarray
+    shear_force: np.ndarray
+    friction_work: float
+    iterations: int
+    mode_changes: int = 0
+    numerical_dissipation: float = 0.0
+    damping_dissipation: float = 0.0
+    broken: np.ndarray | None = None
+    #: of `numerical_dissipation`, what the springs lost between the steps (J; re-detected
+    #: shallower, on another plane or not at all: `open_close.reseat_loss`)
+    reseat_dissipation: float = 0.0

@@ -1,0 +1,193 @@
+"""Shi's block terms and the penalty contact terms of the global system `K D = F`.
+
+Everything is vectorised over blocks or contacts. Each block has 12 local columns
+`(u, v, w, rx, ry, rz, εx, εy, εz, γyz, γzx, γxy)`; rigid blocks use the first 6, fixed
+blocks none. `dof_map (n, 12) int` gives the global unknown of each column, -1 where the
+column is not an unknown. The global K is assembled block-sparse (:class:`SystemPlan`):
+contact terms are first summed per block and per block pair, so its size follows the
+blocks and pairs in contact, not the number of contact points.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import scipy.sparse as sp
+
+from engine.dynamics._assembly_kernels import (
+    bsr_pattern,
+    bsr_to_dense,
+    coupled_components,
+    fill_bsr,
+    update_bsr,
+)
+from engine.geometry._transform_kernels import TA
+from engine.geometry.transforms import displacement_matrices  # noqa: F401 (asm.)
+
+#: the T_aᵀ T_b of the second moments C_ab, flattened (9, 144)
+_CROSS = np.einsum("aki,bkj->abij", TA, TA).reshape(9, 144)
+
+
+def mass_matrices(density: np.ndarray, volume: np.ndarray, second: np.ndarray) -> np.ndarray:
+    """Block mass matrices `(n, 12, 12)`: `ρ (V T0ᵀT0 + Σ C_ab T_aᵀ T_b)`.
+
+    `density (n,)` kg/m³, `volume (n,)` m³, `second (n, 3, 3)` = ∫ x_t x_tᵀ dV.
+    """
+    n = len(volume)
+    m = (second.reshape(n, 9) @ _CROSS).reshape(n, 12, 12)
+    for k in range(3):  # T0ᵀ T0 is the identity on the translations
+        m[:, k, k] += volume
+    m *= density[:, None, None]
+    return m
+
+
+def elastic_matrix(young_modulus: float, poisson_ratio: float) -> np.ndarray:
+    """Isotropic 6×6 stiffness for Voigt strains with engineering shear (Pa)."""
+    e, nu = young_modulus, poisson_ratio
+    lam = e * nu / ((1 + nu) * (1 - 2 * nu))
+    g = e / (2 * (1 + nu))
+    d = np.zeros((6, 6))
+    d[:3, :3] = lam
+    d[np.arange(3), np.arange(3)] = lam + 2 * g
+    d[np.arange(3, 6), np.arange(3, 6)] = g
+    return d
+
+
+def scatter_vector(dof_map: np.ndarray, block: np.ndarray, values: np.ndarray,
+                   n: int) -> np.ndarray:
+    """Global vector `(n,)` from per-block 12-vectors `values (p, 12)` of blocks `block (p,)`."""
+    idx = dof_map[block]
+    keep = idx >= 0
+    return np.bincount(idx[keep], weights=values[keep], minlength=n)
+
+
+#: systems with at most this many unknowns are assembled and factorized dense: for a few
+#: blocks the sparse machinery costs more than the arithmetic
+DENSE_MAX_UNKNOWNS = 120
+
+
+def contact_stiffness(
+    ti: np.ndarray,
+    tj: np.ndarray,
+    normal: np.ndarray,
+    kn: np.ndarray,
+    ks: np.ndarray,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Normal and (locked) shear penalty springs, paper eqs. 24 and 29.
+
+    `ti`, `tj (c, 3, 12)` are T at the two contact points, `normal (c, 3)`, `kn`, `ks (c,)`
+    (set ks = 0 for sliding contacts). Returns `(kii, kij, kjj)` each `(c, 12, 12)`.
+    """
+    # spring matrix P = kn n nᵀ + ks (I - n nᵀ)
+    nn = np.einsum("ci,cj->cij", normal, normal)
+    p = kn[:, None, None] * nn + ks[:, None, None] * (np.eye(3)[None] - nn)
+    pti = np.einsum("cab,cbj->caj", p, ti)
+    ptj = np.einsum("cab,cbj->caj", p, tj)
+    kii = np.einsum("cai,caj->cij", ti, pti)
+    kij = -np.einsum("cai,caj->cij", ti, ptj)
+    kjj = np.einsum("cai,caj->cij", tj, ptj)
+    return kii, kij, kjj
+
+
+@dataclass
+class SystemPlan:
+    """The global K of one step as a function of the contact modes.
+
+    Everything that does not depend on which contacts are closed or locked (block terms,
+    the block-sparse pattern and where each contact's terms land in it) is computed once
+    per step by :func:`plan_system`; each open-close cycle then only weights the contacts'
+    unit terms and sums them, in one compiled pass (:func:`fill_bsr`, or
+    :func:`update_bsr` over the contacts that changed). A matrix :meth:`matrix` returns is
+    valid until its next call, which may update it in place.
+    """
+
+    m: int
+    d: int
+    base: np.ndarray  # (nnz, d, d) BSR data holding the block terms of the free blocks
+    indptr: np.ndarray  # (m + 1,) BSR row pointers
+    indices: np.ndarray  # (nnz,) BSR block columns
+    diag_slot: np.ndarray  # (m,) the diagonal block of each block row
+    ti: np.ndarray  # (c, 3, d) contacts' displacement matrices on block i (contiguous)
+    tj: np.ndarray  # (c, 3, d) on block j
+    normal: np.ndarray  # (c, 3)
+    fi: np.ndarray  # (c,) block row of block i of each contact (-1: fixed)
+    fj: np.ndarray  # (c,) block row of block j
+    slot_ii: np.ndarray  # (c,) BSR block of each contact term (-1: none)
+    slot_jj: np.ndarray
+    slot_ij: np.ndarray
+    slot_ji: np.ndarray
+    dense: bool
+    #: the last matrix's coupled components of the block rows (:func:`coupled_components`)
+    components: np.ndarray | None = None
+    #: the last matrix's contact stiffnesses `kn`, `ks (c,)` and BSR data, for updates
+    last: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
+    #: the last BSR data and the matrix wrapping it (a view: an update in place shows)
+    bsr: tuple[np.ndarray, sp.bsr_matrix] | None = None
+
+    def matrix(self, kn: np.ndarray, ks: np.ndarray) -> tuple[sp.bsr_matrix | np.ndarray,
+                                                               np.ndarray]:
+        """K and its diagonal blocks `(m, d, d)` for per-contact normal and shear
+        stiffness `kn`, `ks (c,)` (0 where the contact is open / not locked); K is dense
+        for small systems, else BSR. Also sets :attr:`components`."""
+        kn = np.ascontiguousarray(kn, dtype=np.float64)
+        ks = np.ascontiguousarray(ks, dtype=np.float64)
+        data = self._data(kn, ks)
+        self.components = coupled_components(self.m, self.slot_ij, self.fi, self.fj, kn, ks)
+        dblk = data[self.diag_slot]
+        if self.dense:
+            return bsr_to_dense(self.indptr, self.indices, data), dblk
+        if self.bsr is None or self.bsr[0] is not data:  # else K was updated in place
+            n = self.m * self.d
+            self.bsr = (data, sp.bsr_matrix((data, self.indices, self.indptr), shape=(n, n)))
+        return self.bsr[1], dblk
+
+    def _data(self, kn: np.ndarray, ks: np.ndarray) -> np.ndarray:
+        """BSR data of K for `kn`, `ks`: the last K updated in place by the contacts
+        whose stiffness changed when they are few (an open-close cycle changes tens of a
+        rock mass's thousands of contacts), else filled afresh. In place, not on a copy:
+        the copy of a 5,000-block K cost as much as the update."""
+        last = self.last
+        if last is not None and len(kn) >= UPDATE_MIN_CONTACTS:
+            changed = np.flatnonzero((kn != last[0]) | (ks != last[1]))
+            if len(changed) <= UPDATE_MAX_FRACTION * len(kn):
+                data = last[2]
+                update_bsr(data, self.ti, self.tj, self.normal, self.slot_ii, self.slot_jj,
+                           self.slot_ij, self.slot_ji, changed,
+                           kn[changed] - last[0][changed], ks[changed] - last[1][changed])
+                self.last = (kn.copy(), ks.copy(), data)
+                return data
+        data = fill_bsr(self.base, self.ti, self.tj, self.normal, self.slot_ii, self.slot_jj,
+                        self.slot_ij, self.slot_ji, kn, ks)
+        self.last = (kn.copy(), ks.copy(), data)
+        return data
+
+
+#: K is updated from the last one when at most this fraction of the contacts changed
+#: stiffness, else filled afresh; only from this many contacts on (a fresh fill of fewer
+#: costs microseconds, and keeps small scenes' round-off exactly as it was)
+UPDATE_MAX_FRACTION = 0.25
+UPDATE_MIN_CONTACTS = 512
+
+
+def plan_system(
+    row_of: np.ndarray, diag: np.ndarray, bi: np.ndarray, bj: np.ndarray,
+    ti: np.ndarray, tj: np.ndarray, normal: np.ndarray,
+) -> SystemPlan:
+    """The :class:`SystemPlan` of one step. `row_of (n,) int` is each block's block row
+    (-1 for fixed blocks, rows in block order), `diag (n, d, d)` the block terms; contacts
+    `bi`, `bj (c,)` with `ti`, `tj (c, 3, d)` and `normal (c, 3)`. K is dense for systems
+    of at most DENSE_MAX_UNKNOWNS unknowns, else block-sparse (BSR)."""
+    d = diag.shape[1]
+    m = int(row_of.max(initial=-1)) + 1
+    fi = np.ascontiguousarray(row_of[bi], dtype=np.int64)
+    fj = np.ascontiguousarray(row_of[bj], dtype=np.int64)
+    indptr, indices, diag_slot, sii, sjj, sij, sji = bsr_pattern(m, fi, fj)
+    base = np.zeros((len(indices), d, d))
+    base[diag_slot] = diag[row_of >= 0]
+    return SystemPlan(m=m, d=d, base=base, indptr=indptr, indices=indices,
+                      diag_slot=diag_slot, ti=np.ascontiguousarray(ti, dtype=np.float64),
+                      tj=np.ascontiguousarray(tj, dtype=np.float64),
+                      normal=np.ascontiguousarray(normal, dtype=np.float64), fi=fi, fj=fj,
+                      slot_ii=sii, slot_jj=sjj, slot_ij=sij, slot_ji=sji,
+                      dense=m * d <= DENSE_MAX_UNKNOWNS)

@@ -1,0 +1,178 @@
+"""Everything that changes during a run (as MuJoCo's data): block positions and velocities,
+stresses, the contacts' memory, time and Δt, energies and diagnostics.
+
+A run can be saved and resumed from its :class:`State` alone (:func:`save_state`,
+:func:`load_state`); the constants live in :class:`engine.dynamics.system.BlockSystem`.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import os
+import time as _time
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+
+def _row_keys(key: np.ndarray) -> np.ndarray:
+    """Contact keys `(c, 4) int64` as one sortable scalar per row `(c,)` (bytes)."""
+    k = np.ascontiguousarray(key, dtype=np.int64)
+    return k.view(np.dtype((np.void, k.dtype.itemsize * k.shape[1]))).ravel()
+
+
+#: the arrays of a :class:`ContactMemory`, in its field order
+_MEMORY_FIELDS = ("key", "mode", "shear", "tangent", "broken", "gap")
+
+
+@dataclass
+class ContactMemory:
+    """What the closed contacts carry to the next step (inherited modes, paper 2.4 (2)).
+
+    One row per closed contact, sorted by key: `key (m, 4)`, `mode (m,)`, accumulated
+    tangential displacement `shear (m, 3)` m, sliding direction `tangent (m, 3)`,
+    `broken (m,)` (cohesion and tensile strength lost) and the end-of-step `gap (m,)` m.
+    """
+
+    key: np.ndarray = field(default_factory=lambda: np.zeros((0, 4), dtype=np.int64))
+    mode: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int8))
+    shear: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
+    tangent: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
+    broken: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=bool))
+    gap: np.ndarray = field(default_factory=lambda: np.zeros(0))
+
+    def __post_init__(self) -> None:
+        order = np.argsort(_row_keys(self.key), kind="stable")
+        for name in _MEMORY_FIELDS:
+            setattr(self, name, getattr(self, name)[order])
+        self._sorted = _row_keys(self.key)
+
+    def find(self, key: np.ndarray) -> np.ndarray:
+        """Row of each key `(c, 4)` in the memory `(c,) int`, -1 where it is not there."""
+        if len(self._sorted) == 0:
+            return np.full(len(key), -1, dtype=np.int64)
+        q = _row_keys(key)
+        pos = np.minimum(np.searchsorted(self._sorted, q), len(self._sorted) - 1)
+        return np.where(self._sorted[pos] == q, pos, -1)
+
+
+def _zero_energies() -> dict[str, float]:
+    return {"gravity_work": 0.0, "external_work": 0.0, "friction_dissipation": 0.0,
+            "numerical_dissipation": 0.0, "damping_dissipation": 0.0}
+
+
+@dataclass
+class Diagnostics:
+    """What a run observed about itself: deepest penetration (m) and its ratio to the
+    thinner block's thickness, contacts found implausibly deep and relaxed, the Δt cuts by
+    reason, what limited each step's Δt, the linear solves and K factorizations of the
+    open-close iterations (failed attempts included), wall time (s) per phase (detection,
+    assembly, solve, open_close, update, output), the blocks' initial overlaps and the
+    energy balance."""
+
+    max_penetration: float = 0.0
+    max_penetration_ratio: float = 0.0
+    relaxed_contacts: int = 0
+    #: energy (J) the contact springs lost between steps, re-detected shallower, on another
+    #: plane or not at all (booked as numerical dissipation)
+    reseat_dissipation: float = 0.0
+    cuts: dict[str, int] = field(default_factory=dict)
+    #: steps by what limited their Δt (:data:`engine.step.stepping.LIMITS`): the asked Δt, the
+    #: run's end, a cut in the step (by the cut's reason), a cut kept from the step before,
+    #: regrowth after a cut, or held because the step before changed many contacts
+    limited_by: dict[str, int] = field(default_factory=dict)
+    #: why the state's Δt (the next step's) is what it is, decided by the step before
+    dt_reason: str = "asked"
+    #: linear solves and K factorizations of the open-close iterations, failed attempts
+    #: included (what a step costs beyond detection)
+    solves: int = 0
+    factorizations: int = 0
+    timings: dict[str, float] = field(default_factory=dict)
+    #: deepest overlap of the blocks as given (m; their springs start unstretched) and how
+    #: many contacts had one
+    initial_overlap: float = 0.0
+    initial_overlaps: int = 0
+    #: energy the run has created (J; stored + dissipated − work), its largest value so far,
+    #: and the run's energy scale (J; the largest of the work done and the energy stored)
+    energy_created: float = 0.0
+    max_energy_created: float = 0.0
+    energy_scale: float = 0.0
+
+    def tick(self, phase: str, since: float) -> float:
+        """Add the wall time since `since` (perf_counter) to `phase`; return now."""
+        now = _time.perf_counter()
+        self.timings[phase] = self.timings.get(phase, 0.0) + now - since
+        return now
+
+
+@dataclass
+class State:
+    """Everything that changes from step to step. Shapes: `n` blocks.
+
+    Block `b`'s points are at `centroid[b] + affine[b] (X0 − c0[b])`; `rotation (n, 3, 3)`
+    is the accumulated rotation, `velocity (n, 12)` the block velocities, `stress (n, 6)`
+    Pa. `dt` is the time step the next step tries, `last_dt` the last step's;
+    `last_d (n, 12)` the last step's block displacements and `deepest (n,)` m each block's
+    deepest contact penetration at its end (None before the first step). `energies` are
+    the accumulated works and dissipations (J).
+    """
+
+    centroid: np.ndarray
+    affine: np.ndarray
+    rotation: np.ndarray
+    velocity: np.ndarray
+    stress: np.ndarray
+    time: float = 0.0
+    step: int = 0
+    dt: float = 0.0
+    last_dt: float = 0.0
+    memory: ContactMemory = field(default_factory=ContactMemory)
+    last_d: np.ndarray | None = None
+    deepest: np.ndarray | None = None
+    energies: dict[str, float] = field(default_factory=_zero_energies)
+    #: J held by the contact springs at the end of the last step
+    contact_energy: float = 0.0
+    #: rock bolts (None without): plastic elongation `(b,)` m, shear force on the head
+    #: block `(b, 3)` N, state `(b,)` (:data:`engine.loads.bolts.ELASTIC`, YIELDED, BROKEN)
+    bolt_plastic: np.ndarray | None = None
+    bolt_shear: np.ndarray | None = None
+    bolt_status: np.ndarray | None = None
+    diagnostics: Diagnostics = field(default_factory=Diagnostics)
+    #: values derived from this state, computed once (not saved)
+    cache: dict[str, Any] = field(default_factory=dict, repr=False, compare=False)
+
+
+def initial_state(centroid: np.ndarray, velocity: np.ndarray, dt: float) -> State:
+    """The state at t = 0 of blocks at `centroid (n, 3)` moving with `velocity (n, 12)`."""
+    n = len(centroid)
+    return State(centroid=centroid.copy(), affine=np.repeat(np.eye(3)[None], n, axis=0),
+                 rotation=np.repeat(np.eye(3)[None], n, axis=0), velocity=velocity,
+                 stress=np.zeros((n, 6)), dt=dt, last_dt=dt)
+
+
+_ARRAYS = ("centroid", "affine", "rotation", "velocity", "stress", "last_d", "deepest",
+           "bolt_plastic", "bolt_shear", "bolt_status")
+_SCALARS = ("time", "step", "dt", "last_dt", "contact_energy")
+
+
+def save_state(state: State, path: str | os.PathLike[str]) -> None:
+    """Write `state` to `path` (a `.npz` file of plain arrays; floats kept bit for bit)."""
+    arrays = {name: getattr(state, name) for name in _ARRAYS if getattr(state, name) is not None}
+    arrays.update({f"memory_{name}": getattr(state.memory, name) for name in _MEMORY_FIELDS})
+    meta = {name: getattr(state, name) for name in _SCALARS}
+    meta.update(energies=state.energies, diagnostics=dataclasses.asdict(state.diagnostics))
+    with open(path, "wb") as fh:  # np.savez would add ".npz" to a name without it
+        np.savez(fh, meta=np.array(json.dumps(meta)), **arrays)
+
+
+def load_state(path: str | os.PathLike[str]) -> State:
+    """The :class:`State` written by :func:`save_state`."""
+    with np.load(path, allow_pickle=False) as z:
+        meta = json.loads(str(z["meta"]))
+        arrays = {name: z[name] if name in z.files else None for name in _ARRAYS}
+        memory = ContactMemory(**{name: z[f"memory_{name}"] for name in _MEMORY_FIELDS})
+    diagnostics = Diagnostics(**meta["diagnostics"])
+    return State(**arrays, **{name: meta[name] for name in _SCALARS}, memory=memory,
+                 energies=meta["energies"], diagnostics=diagnostics)
