@@ -2,7 +2,7 @@
 
 Each run gets a fresh Redis, data directory and `polydda serve` (RQ backend) with K
 `polydda worker`s, started and registered before the clock starts; the sweep goes out as K
-shares: one parent job of K children (`service.client.sweep_parent`, what `polydda sweep
+shares: one parent job of K children (`service.cli.client.sweep_parent`, what `polydda sweep
 --server URL --jobs K` runs), and the clock stops when the merged document is written. The
 embedded backend (2 job processes) runs the same sweep in 2 shares. Every run must give
 the same numbers (all but each realisation's own wall time).
@@ -22,7 +22,7 @@ from typing import Any
 
 import httpx
 
-from service.client import sweep_parent
+from service.cli.client import sweep_parent
 from tests.service_helpers import RedisServer, Server, wait_until, worker_command
 
 ROOT = Path(__file__).resolve().parents[1]

@@ -9,9 +9,8 @@ from __future__ import annotations
 
 import hashlib
 import os
+import sys
 from pathlib import Path
-
-import numba
 
 _HERE = Path(__file__).resolve().parent
 
@@ -30,7 +29,10 @@ def kernel_cache_dir() -> Path:
 
 
 if not os.environ.get("NUMBA_CACHE_DIR"):
-    numba.config.CACHE_DIR = str(kernel_cache_dir())
+    if "numba" in sys.modules:  # numba read its settings already: set its cache directly
+        sys.modules["numba"].config.CACHE_DIR = str(kernel_cache_dir())
+    else:  # numba reads this when a kernel module imports it (importing it here costs 0.2 s)
+        os.environ["NUMBA_CACHE_DIR"] = str(kernel_cache_dir())
 
 
 def kernels_cached() -> bool:

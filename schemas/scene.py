@@ -24,6 +24,7 @@ from pydantic import (
     model_validator,
 )
 
+from engine.analyses.sweep import ANALYTIC_QUANTITIES, SWEEP_QUANTITIES, sweep_truncation
 from engine.model import (
     DEFAULT_FRICTION_ANGLE_DEG,
     AnalysisControls,
@@ -640,29 +641,6 @@ class NormalSpec(_Model):
     sd: Positive
 
 
-#: what a sweep may vary: (lowest, highest, unit) of each quantity; a normal or lognormal
-#: draw is truncated to these bounds (friction angle: [0°, 90°), the highest excluded)
-SWEEP_QUANTITIES: dict[str, tuple[float, float, str]] = {
-    "friction_angle": (0.0, 90.0, "degrees"),
-    "cohesion": (0.0, math.inf, "Pa"),
-    "joint_orientation": (0.0, math.inf, "degrees"),
-    "water_level": (-math.inf, math.inf, "m"),
-    "kh": (0.0, 5.0, ""),
-    "bolt_pretension": (0.0, math.inf, "N"),
-    "bolt_capacity": (0.0, math.inf, "N"),
-    "penalty": (0.0, math.inf, "N/m"),
-    "time_step": (0.0, math.inf, "s"),
-}
-
-
-def sweep_truncation(quantity: str, low: float | None = None,
-                     high: float | None = None) -> tuple[float, float]:
-    """The range a normal or lognormal draw of `quantity` is truncated to: the quantity's
-    range, narrowed by `low` / `high` when given."""
-    lo, hi, _ = SWEEP_QUANTITIES[quantity]
-    return (lo if low is None else max(lo, low), hi if high is None else min(hi, high))
-
-
 #: quantities that must stay strictly above their lowest bound
 _SWEEP_POSITIVE = ("bolt_capacity", "penalty", "time_step")
 #: the fields each distribution takes (besides the targets)
@@ -672,8 +650,6 @@ _SWEEP_FIELDS = {"normal": ("mean", "sd"), "uniform": ("low", "high"),
 _SWEEP_TARGETS = {"friction_angle": "joint_material", "cohesion": "joint_material",
                   "joint_orientation": "joint", "bolt_pretension": "bolt",
                   "bolt_capacity": "bolt"}
-#: the quantities eq. 51 (sweep mode `analytic`) takes into account
-ANALYTIC_QUANTITIES = ("friction_angle", "joint_orientation")
 
 
 class SweepParameterSpec(_Model):

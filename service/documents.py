@@ -21,6 +21,8 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from engine.jsonable import finite
+
 if TYPE_CHECKING:
     from engine.analyses.kinematics import KinematicResult
     from engine.analyses.strength_reduction import (
@@ -55,17 +57,6 @@ def json_default(obj: Any) -> Any:
     if isinstance(obj, np.ndarray):
         return obj.tolist()
     raise TypeError(f"{type(obj).__name__} is not JSON serializable")
-
-
-def finite(value: Any) -> Any:
-    """`value` with NaN and infinities replaced by None (strict JSON)."""
-    if isinstance(value, float):
-        return value if value == value and abs(value) != float("inf") else None
-    if isinstance(value, dict):
-        return {k: finite(v) for k, v in value.items()}
-    if isinstance(value, list | tuple):
-        return [finite(v) for v in value]
-    return value
 
 
 def write_json_atomic(path: Path, doc: Any) -> None:

@@ -287,7 +287,7 @@ def synthetic_job(data_dir: Path, n_blocks: int = 1000, n_steps: int = 100,
     `data_dir`; `(job id, its result.h5)`."""
     from benchmarks.bench_results import FrameSource, grid_model
     from engine.results.writer import ResultWriter
-    from service.backends.store import JobStore
+    from service.jobs.store import JobStore
     from service.settings import Settings
 
     settings = Settings(data_dir=data_dir)
@@ -313,7 +313,7 @@ def synthetic_job(data_dir: Path, n_blocks: int = 1000, n_steps: int = 100,
 def make_client(data_dir: Path, **settings: Any) -> Any:
     """An in-process client of a fresh app on `data_dir` (two workers, a short cancel
     grace); `settings` override."""
-    from service.app import create_app
+    from service.api.app import create_app
     from service.settings import Settings
 
     kw: dict[str, Any] = {"data_dir": data_dir, "max_workers": 2, "cancel_grace": 0.5}

@@ -13,7 +13,7 @@ from engine.analyses.strength_reduction import StrengthReductionControls, factor
 from engine.model import JointMaterial
 from engine.step.simulation import STATUS_COMPLETED, run
 from schemas.convert import build_model
-from service.cli import main
+from service.cli.main import main
 from tests.test_simulation import FrameLog, incline_model
 
 EXAMPLES = Path(__file__).resolve().parents[1] / "examples"

@@ -19,7 +19,7 @@ from engine.step.simulation import STATUS_COMPLETED, run
 from schemas.convert import build_model, pattern_bolts
 from schemas.errors import Problems, SceneError
 from schemas.scene import BoltPatternSpec, load_scene
-from service.cli import main
+from service.cli.main import main
 from tests.test_simulation import FrameLog
 
 EXAMPLES = Path(__file__).resolve().parents[1] / "examples"

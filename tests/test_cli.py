@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 from engine.geometry.polyhedron import dip_normal
-from service.cli import main
+from service.cli.main import main
 from tests.test_results import vtk_step
 
 EXAMPLES = Path(__file__).resolve().parent.parent / "examples"
@@ -157,7 +157,7 @@ def test_usage_errors(capsys: pytest.CaptureFixture[str]) -> None:
 
 
 def test_worker_options_and_help(capsys: pytest.CaptureFixture[str]) -> None:
-    """`polydda worker` takes the options of service.worker (running one: test_service_rq)."""
+    """`polydda worker` takes the options of service.jobs.worker (running one: test_service_rq)."""
     code, out, _ = run(capsys, "worker", "--help")
     assert code == 0 and out.startswith("usage: polydda worker")
     for option in ("--redis-url", "--queue", "--data-dir", "--name", "--burst", "--max-jobs",
@@ -169,9 +169,9 @@ def test_worker_options_and_help(capsys: pytest.CaptureFixture[str]) -> None:
     assert code == 2 and "--max-jobs: must be at least 1, got 0" in err
     code, _, err = run(capsys, "worker", "--log-level", "chatty")
     assert code == 2 and "--log-level" in err
-    from service.cli import build_parser
-    from service.worker import argv_of
-    from service.worker import build_parser as worker_parser
+    from service.cli.main import build_parser
+    from service.jobs.worker import argv_of
+    from service.jobs.worker import build_parser as worker_parser
 
     argv = ["worker", "--redis-url", "redis://h:6379/1", "--queue", "q", "--data-dir", "/d",
             "--name", "w", "--burst", "--max-jobs", "3", "--log-level", "debug"]

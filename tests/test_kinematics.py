@@ -22,7 +22,7 @@ from engine.analyses.kinematics import (
 from engine.analyses.stereonet import stereonet_data
 from schemas.convert import kinematic_inputs
 from schemas.errors import SceneError
-from service.cli import main
+from service.cli.main import main
 from tests.service_helpers import TestClient, wait_final
 
 EXAMPLES = Path(__file__).resolve().parents[1] / "examples"
@@ -254,7 +254,7 @@ def test_cli_kinematics_without_slope_face(capsys: pytest.CaptureFixture[str]) -
 def test_api_kinematics_process(tmp_path: Path) -> None:
     """POST /jobs?process=kinematics: done well under a second, the document inline and the
     stereonet served as a PNG."""
-    from service.app import create_app
+    from service.api.app import create_app
     from service.settings import Settings
 
     settings = Settings(data_dir=tmp_path / "data", max_workers=1)

@@ -144,7 +144,7 @@ def test_replacing_a_finished_file_leaves_its_readers_a_valid_file(tmp_path: Pat
 
 
 def _polydda(*args: str) -> list[str]:
-    return [sys.executable, "-c", "import sys; from service.cli import main; "
+    return [sys.executable, "-c", "import sys; from service.cli.main import main; "
             "sys.exit(main(sys.argv[1:]))", *args]
 
 

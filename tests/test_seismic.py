@@ -17,8 +17,8 @@ from engine.step.simulation import STATUS_COMPLETED, run
 from schemas.convert import build_model
 from schemas.errors import SceneError
 from schemas.scene import load_scene
-from service.app import create_app
-from service.cli import main
+from service.api.app import create_app
+from service.cli.main import main
 from service.settings import Settings
 from tests.service_helpers import TestClient, wait_final
 from tests.test_simulation import FrameLog

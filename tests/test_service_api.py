@@ -430,7 +430,7 @@ def test_jobs_left_running_are_requeued_on_start(tmp_path: Path) -> None:
             "Location"]
         wait_final(c, url)
     job_id = url.rsplit("/", 1)[1]
-    from service.backends.store import JobStore
+    from service.jobs.store import JobStore
 
     store = JobStore(tmp_path / "data" / "jobs.sqlite")  # pretend the API died mid-job
     store.update(job_id, status="running", finished=None, attempts=1, worker_pid=None)

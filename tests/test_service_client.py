@@ -1,4 +1,4 @@
-"""`polydda submit`'s client (service.client): one Idempotency-Key per submission, retries of
+"""`polydda submit`'s client (service.cli.client): one Idempotency-Key per submission, retries of
 429 / 503 and cut connections after Retry-After, bounded."""
 
 from __future__ import annotations
@@ -9,7 +9,7 @@ from pathlib import Path
 import httpx
 import pytest
 
-from service.client import MAX_PAUSE, ServiceError, Unreachable, post_with_retries, submit
+from service.cli.client import MAX_PAUSE, ServiceError, Unreachable, post_with_retries, submit
 
 
 def _transport(answers: list[httpx.Response | Exception], seen: list[httpx.Request]

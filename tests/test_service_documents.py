@@ -1,4 +1,4 @@
-"""One document layer for CLI and API (service.documents, service.processes): the same scene
+"""One document layer for CLI and API (service.documents, service.jobs.processes): the same scene
 gives the same factor of safety, summary and blocks through `polydda` and through a job."""
 
 from __future__ import annotations
@@ -12,10 +12,10 @@ import numpy as np
 import pytest
 
 from schemas.convert import build_model
-from service.app import create_app
-from service.cli import main
+from service.api.app import create_app
+from service.cli.main import main
 from service.documents import fos_controls, run_summary
-from service.processes import PROCESS_IDS, PROCESSES, default_process
+from service.jobs.processes import PROCESS_IDS, PROCESSES, default_process
 from service.settings import Settings
 from tests.service_helpers import TestClient, wait_final
 

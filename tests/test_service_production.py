@@ -96,7 +96,7 @@ def test_a_key_whose_job_failed_for_our_cause_may_be_retried(tmp_path: Path) -> 
         assert [j["status"] for j in jobs] == ["failed", "failed"]
         assert all(j["error_kind"] == "system" for j in jobs)
         # a job that failed for the model's cause keeps its key (a replay)
-        from service.backends.store import JobStore
+        from service.jobs.store import JobStore
 
         store = JobStore(tmp_path / "data" / "jobs.sqlite")
         job, created = store.submit(process="simulation", scene="{}", client="c", quota=4,
@@ -184,7 +184,7 @@ def test_status_shows_attempts(tmp_path: Path) -> None:
     with make_client(tmp_path, max_workers=1) as c:
         url = _blocks_job(c)
         assert wait_final(c, url)["attempts"] == 1
-    from service.backends.store import JobStore
+    from service.jobs.store import JobStore
 
     job_id = url.rsplit("/", 1)[1]
     JobStore(tmp_path / "data" / "jobs.sqlite").update(job_id, status="running", finished=None,

@@ -140,8 +140,8 @@ def test_job_committed_but_not_yet_enqueued_is_left_alone(tmp_path: Path, redis_
     It did: the job then ran twice, on two workers, into the same result file, and one run
     failed (seen once in CI).
     """
-    from service.backends.rq import RqBackend
-    from service.backends.store import ACCEPTED, JobStore
+    from service.jobs.rq import RqBackend
+    from service.jobs.store import ACCEPTED, JobStore
     from service.settings import Settings
 
     settings = Settings(data_dir=tmp_path, backend="rq", redis_url=redis_url)
@@ -212,9 +212,9 @@ def test_a_job_whose_worker_is_lost_is_requeued_a_bounded_number_of_times(
     """The supervisor alone (no worker): a running job with no heartbeat goes back to the
     queue until `max_attempts` runs were lost, then fails saying so; a cancelled one ends
     dismissed. A job whose heartbeat is alive, or that just started, is left alone."""
-    from service.backends.rq import RqBackend
-    from service.backends.store import ACCEPTED, DISMISSED, FAILED, RUNNING, JobStore
-    from service.jobs import alive_key, job_key
+    from service.jobs.execute import alive_key, job_key
+    from service.jobs.rq import RqBackend
+    from service.jobs.store import ACCEPTED, DISMISSED, FAILED, RUNNING, JobStore
     from service.settings import Settings
 
     settings = Settings(data_dir=tmp_path, backend="rq", redis_url=redis_url,
@@ -283,7 +283,7 @@ def test_a_run_given_up_for_lost_stops_when_the_job_runs_again(redis_url: str) -
 
     from redis import Redis
 
-    from service.jobs import RedisContext, cancel_key, job_key
+    from service.jobs.execute import RedisContext, cancel_key, job_key
 
     with Redis.from_url(redis_url) as r:
         ctx = RedisContext(r, "j1")

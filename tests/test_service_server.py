@@ -15,9 +15,9 @@ import numpy as np
 import pytest
 
 from engine.results.writer import open_result
-from service import client as svc_client
+from service.cli import client as svc_client
+from service.jobs.worker import build_parser as worker_parser
 from service.settings import Settings
-from service.worker import build_parser as worker_parser
 from tests.service_helpers import (
     ROOT,
     Server,

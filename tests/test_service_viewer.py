@@ -20,8 +20,8 @@ from scipy.spatial.transform import Rotation
 
 from engine.results.plots import plot_snapshot
 from engine.results.writer import open_result
-from service.frames import decode_binary
-from service.pages import trend_plunge
+from service.api.frames import decode_binary
+from service.api.pages import trend_plunge
 from service.settings import Settings
 from tests.service_helpers import (
     TestClient,
@@ -290,7 +290,7 @@ def test_trend_and_plunge() -> None:
 
 
 def test_report_of_a_factor_of_safety_job(tmp_path: Path) -> None:
-    from service.backends.store import JobStore
+    from service.jobs.store import JobStore
 
     settings = Settings(data_dir=tmp_path / "data")
     settings.data_dir.mkdir(parents=True)
@@ -321,8 +321,9 @@ def test_report_of_a_sweep_has_its_distribution_and_the_kinematics(tmp_path: Pat
     """A sweep job's report: PoF with its interval per method, the FS histogram and CDF as
     an inline figure; the wedge scene's kinematic screening (its slope face and J1/J2)
     with the stereonet inline."""
-    from service.backends.store import JobStore
-    from service.sweep import SweepSpec, run_sweep
+    from engine.analyses.sweep import SweepSpec
+    from service.jobs.store import JobStore
+    from service.sweep import run_sweep
     from tests.service_helpers import wedge_scene
 
     settings = Settings(data_dir=tmp_path / "data")
@@ -363,7 +364,7 @@ def test_report_of_a_sweep_has_its_distribution_and_the_kinematics(tmp_path: Pat
 def test_ear_clip_of_a_non_convex_face(turn: int, reverse: bool) -> None:
     """An L-shaped face (a fan from a corner would cover its notch) in each axis plane and
     both windings: triangles that tile it, wound like it."""
-    from service.frames import ear_clip
+    from service.api.frames import ear_clip
 
     L = np.array([[0, 0, 0], [2, 0, 0], [2, 1, 0], [1, 1, 0], [1, 2, 0], [0, 2, 0]], float)
     P = np.roll(L[::-1] if reverse else L, 2, axis=0)[:, [(turn + i) % 3 for i in range(3)]]

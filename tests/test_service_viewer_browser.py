@@ -254,7 +254,7 @@ def test_wedge_base_faces_are_triangulated_without_overlap(served: Any) -> None:
     import numpy as np
 
     from engine.results.writer import open_result
-    from service.frames import decode_binary
+    from service.api.frames import decode_binary
 
     server, job, _, _ = served
     p = decode_binary(httpx.get(f"{server.url}/jobs/{job}/results/frames?stop=1").content)

@@ -14,14 +14,9 @@ import numpy as np
 import pytest
 from scipy import stats
 
-from service.cli import main
-from service.sweep import (
-    SweepSpec,
-    analytic_fs,
-    merge_documents,
-    realisation_scene,
-    run_sweep,
-)
+from engine.analyses.sweep import SweepSpec, merge_documents
+from service.cli.main import main
+from service.sweep import analytic_fs, realisation_scene, run_sweep
 
 EXAMPLES = Path(__file__).resolve().parents[1] / "examples"
 SCENE = json.loads((EXAMPLES / "wedge.json").read_text())
@@ -139,7 +134,7 @@ def test_api_sweep_process_equals_the_cli(tmp_path: Path,
                                           capsys: pytest.CaptureFixture[str]) -> None:
     """POST /jobs?process=sweep (embedded backend) gives the numbers `polydda sweep` gives
     for the same scene; a scene without `sweep` is refused with 422."""
-    from service.app import create_app
+    from service.api.app import create_app
     from service.settings import Settings
     from tests.service_helpers import TestClient, wait_final
 
@@ -186,7 +181,7 @@ def test_shares_of_a_sweep_merge_into_the_whole(tmp_path: Path) -> None:
 def test_api_jobs_of_shares_merge_into_the_whole(tmp_path: Path) -> None:
     """The same sweep as two jobs of the service (embedded backend), each a share of the
     realisations: merged, the numbers of one job running them all."""
-    from service.app import create_app
+    from service.api.app import create_app
     from service.settings import Settings
     from tests.service_helpers import TestClient, wait_final
 
@@ -228,7 +223,7 @@ def test_requeued_sweep_job_redoes_no_realisation(tmp_path: Path) -> None:
     """The API stops mid-sweep (its job process is terminated and the job re-queued); the
     next API process runs the job again in the same folder: it ends with every realisation
     and rewrites none of those written before the stop."""
-    from service.app import create_app
+    from service.api.app import create_app
     from service.settings import Settings
     from tests.service_helpers import TestClient, wait_final, wait_until
 
@@ -257,8 +252,8 @@ def test_requeued_sweep_job_redoes_no_realisation(tmp_path: Path) -> None:
 def test_sweep_jobs_on_the_embedded_backend(tmp_path: Path) -> None:
     """`sweep_jobs` (`polydda sweep --server URL --jobs 2`): two jobs, each a share, give
     the numbers of the sweep run locally; a re-run submits nothing new."""
-    from service.app import create_app
-    from service.client import sweep_jobs
+    from service.api.app import create_app
+    from service.cli.client import sweep_jobs
     from service.settings import Settings
     from service.sweep import spec_of_scene
     from tests.service_helpers import TestClient
@@ -290,7 +285,7 @@ def test_sweep_jobs_on_rq_workers(tmp_path: Path) -> None:
 
     import httpx
 
-    from service.client import sweep_jobs
+    from service.cli.client import sweep_jobs
     from service.sweep import spec_of_scene
     from tests.service_helpers import Server, free_port, wait_until
     from tests.test_service_rq import start_worker
@@ -354,7 +349,7 @@ def test_killing_one_rq_worker_mid_sweep_loses_no_realisation(tmp_path: Path) ->
 
     import httpx
 
-    from service.client import sweep_jobs
+    from service.cli.client import sweep_jobs
     from service.sweep import spec_of_scene
     from tests.service_helpers import RedisServer, Server, job_row
     from tests.test_service_rq import parent_pid, start_worker, stop_workers
@@ -412,8 +407,8 @@ def test_sweep_jobs_resubmit_a_share_whose_process_died(tmp_path: Path) -> None:
     import os
     import signal
 
-    from service.app import create_app
-    from service.client import sweep_jobs
+    from service.api.app import create_app
+    from service.cli.client import sweep_jobs
     from service.settings import Settings
     from service.sweep import spec_of_scene
     from tests.service_helpers import TestClient, job_row

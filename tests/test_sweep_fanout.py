@@ -14,7 +14,7 @@ from typing import Any
 
 import pytest
 
-from service.backends.store import JobStore
+from service.jobs.store import JobStore
 from service.sweep import run_sweep, spec_of_scene
 from tests.service_helpers import job_row, make_client, wait_final, wait_until
 
@@ -158,10 +158,10 @@ def test_a_share_whose_process_died_is_submitted_again(tmp_path: Path) -> None:
 
 
 def test_cli_sweep_on_a_server_is_one_parent_job(tmp_path: Path) -> None:
-    """`polydda sweep --server URL --jobs K` (service.client.sweep_parent): one parent job
+    """`polydda sweep --server URL --jobs K` (service.cli.client.sweep_parent): one parent job
     with K shares, followed to its end; sweep.json has the local numbers and the jobs;
     a re-run submits nothing new."""
-    from service.client import sweep_parent
+    from service.cli.client import sweep_parent
 
     scene = sweep_scene(n=60)
     local = run_sweep(scene, spec_of_scene(scene), tmp_path / "local")
@@ -207,7 +207,7 @@ def test_an_older_job_table_gains_the_parent_columns(tmp_path: Path) -> None:
 @pytest.mark.parametrize("shares,sizes", [(1, [7]), (3, [3, 2, 2]), (7, [1] * 7),
                                           (9, [1] * 7)])
 def test_share_parts_cover_every_index_once(shares: int, sizes: list[int]) -> None:
-    from service.sweep import share_parts
+    from engine.analyses.sweep import share_parts
 
     parts = share_parts(list(range(7)), shares)
     assert [len(p) for p in parts] == sizes

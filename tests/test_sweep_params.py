@@ -15,15 +15,15 @@ import pytest
 from scipy import stats
 
 from engine.analyses.kinematics import normal
+from engine.analyses.sweep import Parameter, SweepSpec
 from schemas.convert import build_model
 from schemas.errors import SceneError
 from schemas.scene import load_scene
-from service.cli import main
+from service.cli.main import main
 from service.sweep import (
-    Parameter,
-    SweepSpec,
     analytic_fs,
     evaluate,
+    parameter_of,
     realisation_scene,
     run_sweep,
     spec_of_scene,
@@ -42,7 +42,7 @@ def example(name: str, **sweep: Any) -> dict[str, Any]:
 
 
 def params(**specs: dict[str, Any]) -> tuple[Parameter, ...]:
-    return tuple(Parameter.of(name, spec) for name, spec in specs.items())
+    return tuple(parameter_of(name, spec) for name, spec in specs.items())
 
 
 FRICTION = {"distribution": "normal", "mean": 40, "sd": 5}

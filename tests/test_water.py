@@ -18,7 +18,7 @@ from engine.step.simulation import STATUS_COMPLETED, run
 from schemas.convert import build_model
 from schemas.errors import SceneError
 from schemas.scene import load_scene
-from service.cli import main
+from service.cli.main import main
 from tests.test_simulation import FrameLog, incline_model
 
 EXAMPLES = Path(__file__).resolve().parents[1] / "examples"

@@ -1,4 +1,6 @@
-"""The REST API: problems (errors), dependencies, submission, results, metrics, OpenAPI, routes.
+"""HTTP: the FastAPI app (:mod:`.app`), thin routes, problems (errors), dependencies,
+submission, results, metrics, OpenAPI; and the pages for people (:mod:`.pages`: home, 3-D
+viewer, report) with the viewer's frames (:mod:`.frames`).
 
-`service.app.create_app` assembles them; routes stay thin and call the modules here.
+`service.api.app.create_app` assembles them; routes stay thin and call the modules here.
 """

@@ -17,8 +17,8 @@ from fastapi import Depends, Header, Request, Security
 from fastapi.security import APIKeyHeader
 
 from service.api.problems import Problem, invalid_scene, no_such_job
-from service.backends import Backend
-from service.backends.store import JobRecord, JobStore
+from service.jobs.backend import Backend
+from service.jobs.store import JobRecord, JobStore
 from service.settings import Settings
 
 
@@ -124,7 +124,7 @@ ClientDep = Annotated[Client, Depends(_client)]
 
 def _job(job_id: str, store: StoreDep, client: ClientDep, backend: BackendDep) -> JobRecord:
     """The job asked for, as it is now (a parent job refreshed from its children)."""
-    from service.fanout import refresh
+    from service.jobs.fanout import refresh
 
     job = store.get(job_id)
     if job is None or not client.owns(job):

@@ -10,8 +10,8 @@ from prometheus_client import CollectorRegistry
 from prometheus_client.core import GaugeMetricFamily, HistogramMetricFamily, Metric
 from prometheus_client.registry import Collector
 
-from service.backends import Backend
-from service.backends.store import JobStore
+from service.jobs.backend import Backend
+from service.jobs.store import JobStore
 
 #: histogram bucket bounds (s): from a block cutting to a day-long simulation
 BUCKETS = (0.1, 0.5, 1.0, 5.0, 15.0, 60.0, 300.0, 1800.0, 3600.0, 6 * 3600.0, 86400.0)

@@ -8,8 +8,8 @@ from typing import Any, Literal
 
 from pydantic import BaseModel, Field
 
-from service.backends.store import JobRecord
-from service.processes import PROCESSES, RESULT_FILE
+from service.jobs.processes import PROCESSES, RESULT_FILE
+from service.jobs.store import JobRecord
 
 Status = Literal["accepted", "running", "successful", "failed", "dismissed"]
 FILE_TYPES = {".h5": "application/x-hdf5", ".json": "application/json", ".png": "image/png"}

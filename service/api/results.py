@@ -12,15 +12,15 @@ import threading
 from pathlib import Path
 from typing import Any
 
+from service.api.frames import Frames, RangeError
+from service.api.frames import frames as make_frames
 from service.api.models import FILE_TYPES
+from service.api.pages import report_html
 from service.api.problems import Problem
-from service.backends import Backend
-from service.backends.store import ACTIVE, SUCCESSFUL, JobRecord, JobStore
 from service.documents import NotRecorded, result_contacts_document
-from service.frames import Frames, RangeError
-from service.frames import frames as make_frames
-from service.pages import report_html
-from service.processes import PROCESSES, RESULT_FILE
+from service.jobs.backend import Backend
+from service.jobs.processes import PROCESSES, RESULT_FILE
+from service.jobs.store import ACTIVE, SUCCESSFUL, JobRecord, JobStore
 from service.settings import Settings
 
 log = logging.getLogger("service.api")
@@ -100,7 +100,7 @@ def so_far_document(job: JobRecord, store: JobStore, backend: Backend,
                     root: str) -> dict[str, Any]:
     """A running sweep parent's results: the aggregate of the realisations its children
     recorded so far (`partial`; the merged children's documents once it ends)."""
-    from service.fanout import so_far
+    from service.jobs.fanout import so_far
 
     return {"jobID": job.id, "processID": job.process, "status": job.status,
             "message": job.message, "partial": True, "sweep": so_far(store, backend, job),
@@ -203,7 +203,7 @@ def live_result(job: JobRecord, settings: Settings) -> Path:
 
 def frames(job: JobRecord, settings: Settings, start: int, stop: int | None, stride: int,
            with_geometry: bool, contacts: bool) -> Frames:
-    """service.frames.frames of the job's result (running or not); 422 for a bad range."""
+    """service.api.frames.frames of the job's result (running or not); 422 for a bad range."""
     from engine.results.writer import open_result
 
     path = live_result(job, settings)

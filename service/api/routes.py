@@ -18,8 +18,7 @@ from starlette.datastructures import Headers
 from starlette.responses import MalformedRangeHeader, RangeNotSatisfiable, StreamingResponse
 from starlette.types import Receive, Scope, Send
 
-from service import pages
-from service.api import results, submission
+from service.api import pages, results, submission
 from service.api.dependencies import (
     BackendDep,
     ClientDep,
@@ -31,15 +30,15 @@ from service.api.dependencies import (
     StoreDep,
     _client,
 )
+from service.api.frames import encode_binary, to_json
 from service.api.models import FILE_TYPES, JobList, Status, StatusInfo, process_doc, status_doc
 from service.api.problems import Problem, problem_responses
-from service.backends.store import ACTIVE, JobStore
 from service.documents import contacts_csv
-from service.fanout import MAX_SHARES
-from service.fanout import cancel as cancel_job
-from service.fanout import current as current_job
-from service.frames import encode_binary, to_json
-from service.processes import PROCESS_IDS, PROCESSES, RESULT_FILE, ProcessId
+from service.jobs.fanout import MAX_SHARES
+from service.jobs.fanout import cancel as cancel_job
+from service.jobs.fanout import current as current_job
+from service.jobs.processes import PROCESS_IDS, PROCESSES, RESULT_FILE, ProcessId
+from service.jobs.store import ACTIVE, JobStore
 
 #: the largest offset SQLite takes (a signed 64-bit integer)
 MAX_OFFSET = 2**63 - 1

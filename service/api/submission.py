@@ -16,9 +16,9 @@ from fastapi.responses import JSONResponse
 from service.api.dependencies import Client
 from service.api.models import status_doc
 from service.api.problems import Problem, invalid_scene
-from service.backends import Backend
-from service.backends.store import IdempotencyConflict, JobStore, QuotaExceeded
-from service.processes import PROCESS_IDS, PROCESSES, default_process
+from service.jobs.backend import Backend
+from service.jobs.processes import PROCESS_IDS, PROCESSES, default_process
+from service.jobs.store import IdempotencyConflict, JobStore, QuotaExceeded
 from service.settings import Settings
 
 log = logging.getLogger("service.api")
@@ -129,7 +129,7 @@ def check_disk(settings: Settings) -> None:
 def fan_out(process: str, scene_data: dict[str, Any], shares: int) -> list[str]:
     """The child scene texts of a sweep in `shares` shares (none for 1: a plain job); 422
     naming `shares` when the process is not `sweep` or there are fewer realisations."""
-    from service.fanout import child_scenes
+    from service.jobs.fanout import child_scenes
 
     if shares == 1:
         return []
@@ -144,7 +144,7 @@ def fan_out(process: str, scene_data: dict[str, Any], shares: int) -> list[str]:
 
 def queue_children(job: Any, store: JobStore, backend: Backend) -> None:
     """Hand a new parent's children to the backend; 503 when none could be queued."""
-    from service.fanout import refresh
+    from service.jobs.fanout import refresh
 
     errors = []
     for child in store.children(job.id):
@@ -165,7 +165,7 @@ def submit(process: str | None, data: Any, *, settings: Settings, store: JobStor
            shares: int = 1) -> JSONResponse:
     """Validate and create a job: 201 with its status (or the earlier job of the same
     Idempotency-Key, `Idempotent-Replayed: true`). A sweep with `shares` > 1 is a parent
-    job of that many child jobs, each a share of the realisations (service.fanout)."""
+    job of that many child jobs, each a share of the realisations (service.jobs.fanout)."""
     body_process, scene_data = unwrap(data)
     if process is not None and body_process is not None and process != body_process:
         raise invalid_scene([{"loc": "process", "msg": f"'{body_process}' in the body but "

@@ -1,7 +1,7 @@
 """Sweeps fanned out over the queue: a parent job of K child `sweep` jobs, one per share.
 
 `POST /jobs?process=sweep&shares=K` creates a parent job and K accepted children (each the
-scene with its share in `sweep.realisations`, see :func:`service.sweep.share_parts`) in one
+scene with its share in `sweep.realisations`, see :func:`engine.analyses.sweep.share_parts`) in one
 transaction; the children go to the backend's queue like any job (embedded workers, or
 `polydda worker`s through Redis). The parent runs nothing: its state is derived from its
 children's rows by :func:`refresh`, which the supervisor thread of either backend calls
@@ -9,7 +9,7 @@ every tick and every read of the parent calls too, so there is no process to los
 restarted server carries on. A refresh submits again, once, a share whose child failed for
 a system reason (:func:`service.sweep.should_resubmit`, shared with the client's
 `sweep_jobs`), and when every child has ended writes the parent's `sweep.json`, the
-children's documents merged (:func:`service.sweep.merge_documents`).
+children's documents merged (:func:`engine.analyses.sweep.merge_documents`).
 """
 
 from __future__ import annotations
@@ -18,10 +18,11 @@ import json
 import logging
 import time
 from collections import Counter
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
-from service.backends import Backend
-from service.backends.store import (
+from service.documents import write_json_atomic
+from service.jobs.processes import SWEEPS_DIR
+from service.jobs.store import (
     ACCEPTED,
     ACTIVE,
     DISMISSED,
@@ -31,8 +32,9 @@ from service.backends.store import (
     JobRecord,
     JobStore,
 )
-from service.documents import write_json_atomic
-from service.processes import SWEEPS_DIR
+
+if TYPE_CHECKING:  # a parameter's type only: the backends call into this module
+    from service.jobs.backend import Backend
 
 log = logging.getLogger(__name__)
 
@@ -43,7 +45,8 @@ MAX_SHARES = 256
 def child_scenes(scene: dict[str, Any], shares: int) -> list[str]:
     """The scene texts of the children of a sweep in `shares` shares (ValueError when
     there are more shares than realisations)."""
-    from service.sweep import share_parts, share_scene, spec_of_scene
+    from engine.analyses.sweep import share_parts
+    from service.sweep import share_scene, spec_of_scene
 
     indices = spec_of_scene(scene).indices()
     if shares > len(indices):
@@ -86,7 +89,7 @@ def _resubmit_lost(store: JobStore, backend: Backend, parent: JobRecord,
 def _merged(store: JobStore, backend: Backend, kids: list[JobRecord]) -> dict[str, Any] | None:
     """The children's sweep documents merged (those that have one), with the list of
     jobs; None when no child left one."""
-    from service.sweep import merge_documents
+    from engine.analyses.sweep import merge_documents
 
     docs = []
     for kid in kids:

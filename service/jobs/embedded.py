@@ -2,7 +2,7 @@
 
 The supervisor thread claims accepted jobs (oldest first), starts their processes, reaps
 them, and kills a cancelled one that has not stopped within `cancel_grace`. A job process
-is a fresh interpreter (`python -m service.backends.embedded ...`) started with the
+is a fresh interpreter (`python -m service.jobs.embedded ...`) started with the
 worker environment (`Settings.worker_env`: one OMP/BLAS thread) already set, so numpy
 never loads with more threads, whatever the API process imported. It writes its progress
 and outcome to the job table itself and stops by itself when the API process that started
@@ -20,16 +20,16 @@ import time
 from pathlib import Path
 from typing import Any
 
-from service.backends import Backend
-from service.backends.store import ACCEPTED, DISMISSED, FAILED, RUNNING, JobRecord, JobStore
-from service.tasks import TaskContext
+from service.jobs.backend import Backend
+from service.jobs.store import ACCEPTED, DISMISSED, FAILED, RUNNING, JobRecord, JobStore
+from service.jobs.tasks import TaskContext
 
 log = logging.getLogger(__name__)
 
 #: seconds between SIGTERM and SIGKILL of a job process that was told to stop
 KILL_AFTER = 2.0
 #: the module a job process runs (`python -m JOB_MODULE ...`); also how a stale one is known
-JOB_MODULE = "service.backends.embedded"
+JOB_MODULE = "service.jobs.embedded"
 
 
 class SqliteContext(TaskContext):
@@ -56,7 +56,7 @@ def child_main(db_path: str, job_id: str, process: str, job_dir: str, nice: int,
     """Body of a job process (its environment set by the parent): run, record the outcome."""
     if nice:
         os.nice(nice)
-    from service.jobs import execute
+    from service.jobs.execute import execute
 
     store = JobStore(Path(db_path))
     ctx = SqliteContext(store, job_id, parent_pid, interval)
@@ -75,7 +75,7 @@ def job_command(db_path: Path, job_id: str, process: str, job_dir: Path, nice: i
 
 
 def main(argv: list[str]) -> int:
-    """Entry point of a job process: `python -m service.backends.embedded` + job_command."""
+    """Entry point of a job process: `python -m service.jobs.embedded` + job_command."""
     db_path, job_id, process, job_dir, nice, interval, parent_pid = argv
     child_main(db_path, job_id, process, job_dir, int(nice), float(interval), int(parent_pid))
     return 0

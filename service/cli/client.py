@@ -223,13 +223,8 @@ def sweep_jobs(client: httpx.Client, scene: dict[str, Any], shares: int, out: Pa
     `out/sweep.json`. Kept for scripts that used it: `polydda sweep --server` now submits
     one parent job (:func:`sweep_parent`).
     """
-    from service.sweep import (
-        merge_documents,
-        share_parts,
-        share_scene,
-        should_resubmit,
-        spec_of_scene,
-    )
+    from engine.analyses.sweep import merge_documents, share_parts
+    from service.sweep import share_scene, should_resubmit, spec_of_scene
 
     spec = spec_of_scene(scene)
     indices = spec.indices()

@@ -2,7 +2,7 @@
 
 RQ's own worker retries only its idle wait for a job; any other Redis error (a heartbeat
 while a job runs, the bookkeeping after it) ends the worker with a traceback, and the job's
-work horse, which dies with its worker (service.jobs.die_with_parent), with it. Here those
+work horse, which dies with its worker (service.jobs.execute.die_with_parent), with it. Here those
 errors are logged once per outage and the worker goes on: the horse keeps computing (its
 own progress writes are skipped and its outcome retried until Redis answers), heartbeats
 resume when Redis is back, and a Redis that came back empty gets the worker's registration

@@ -5,12 +5,12 @@
 - `rq`: jobs go to a Redis queue worked by `polydda worker` processes on any machine; a
   thread in the API copies their progress from Redis into the job table.
 
-A parent job (a sweep fanned out in shares, service.fanout) runs nothing: backends see
+A parent job (a sweep fanned out in shares, service.jobs.fanout) runs nothing: backends see
 only its children (`JobStore.active` leaves parents out) and the supervisor refreshes the
 parent from them every tick.
 
 A backend gets `submitted(job)` after the job's row was committed and `cancel(job_id)` on
-DELETE; the job function itself (service.jobs.execute) is the same for both.
+DELETE; the job function itself (service.jobs.execute.execute) is the same for both.
 """
 
 from __future__ import annotations
@@ -21,7 +21,8 @@ import threading
 import time
 from typing import Any
 
-from service.backends.store import ACCEPTED, DISMISSED, RUNNING, JobRecord, JobStore
+from service.jobs.fanout import refresh_all
+from service.jobs.store import ACCEPTED, DISMISSED, RUNNING, JobRecord, JobStore
 from service.settings import Settings
 
 log = logging.getLogger(__name__)
@@ -87,9 +88,7 @@ class Backend:
 
     def refresh_parents(self) -> None:
         """Bring the parent jobs of fanned-out sweeps up to date with their children
-        (service.fanout): the same on every backend, all state in the job table."""
-        from service.fanout import refresh_all
-
+        (service.jobs.fanout): the same on every backend, all state in the job table."""
         refresh_all(self.store, self)
 
     def health(self) -> dict[str, Any]:
@@ -144,14 +143,3 @@ class Backend:
     def submitted_again(self, job: JobRecord) -> None:
         """A job went back to `accepted` after its worker was lost."""
         self.wake()
-
-
-def make_backend(settings: Settings, store: JobStore) -> Backend:
-    """The backend `settings.backend` names."""
-    if settings.backend == "rq":
-        from service.backends.rq import RqBackend
-
-        return RqBackend(settings, store)
-    from service.backends.embedded import EmbeddedBackend
-
-    return EmbeddedBackend(settings, store)

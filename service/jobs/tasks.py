@@ -1,6 +1,6 @@
 """What a running job sees, whatever the backend: progress reporting, cancellation, outcome.
 
-A backend hands a process runner (service.processes) a :class:`TaskContext`; the runner
+A backend hands a process runner (service.jobs.processes) a :class:`TaskContext`; the runner
 reports progress (throttled), asks `should_stop()` and returns an :class:`Outcome`.
 """
 

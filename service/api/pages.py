@@ -11,8 +11,8 @@ from html import escape
 from pathlib import Path
 from typing import Any
 
-from service.backends.store import JobRecord
-from service.processes import PROCESSES, RESULT_FILE
+from service.jobs.processes import PROCESSES, RESULT_FILE
+from service.jobs.store import JobRecord
 
 VERSION = "0.1.0"
 

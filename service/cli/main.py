@@ -45,8 +45,8 @@ from service.documents import (
     surface,
     write_json_atomic,
 )
-from service.processes import PROCESS_IDS
-from service.worker import add_arguments as worker_options
+from service.jobs.processes import PROCESS_IDS
+from service.jobs.worker import add_arguments as worker_options
 
 __all__ = ["SEARCH_DISTANCE_RATIO", "build_parser", "fos_controls", "main"]
 
@@ -424,7 +424,7 @@ def _sweep_on_server(args: argparse.Namespace, scene: dict[str, Any], spec: Any)
     out in K child jobs (the server merges them)."""
     import httpx
 
-    from service.client import ServiceError, Unreachable, sweep_parent
+    from service.cli.client import ServiceError, Unreachable, sweep_parent
 
     scene = dict(scene, sweep=spec.scene_sweep())
     headers = {"X-API-Key": args.api_key} if args.api_key else {}
@@ -522,21 +522,21 @@ def cmd_plot(args: argparse.Namespace) -> int:
 def cmd_serve(args: argparse.Namespace) -> int:
     """Start the REST API with its embedded workers (or the RQ backend, by settings); exit
     code 1 when another server owns the data directory."""
-    from service.app import serve
+    from service.api.app import serve
 
     return serve(args.host, args.port)
 
 
 def cmd_worker(args: argparse.Namespace) -> int:
-    """Start one scale-out worker on the Redis queue (options: service.worker)."""
-    from service.worker import run as run_worker
+    """Start one scale-out worker on the Redis queue (options: service.jobs.worker)."""
+    from service.jobs.worker import run as run_worker
 
     return run_worker(args)
 
 
 def cmd_submit(args: argparse.Namespace) -> int:
     """Submit a scene to a running server; with --wait, follow it to the end."""
-    from service.client import ServiceError, Unreachable, print_status, submit
+    from service.cli.client import ServiceError, Unreachable, print_status, submit
 
     if not Path(args.scene).is_file():
         print(f"polydda submit: no such scene file: {args.scene}", file=sys.stderr)
@@ -710,7 +710,7 @@ def _version() -> str:
     try:
         return version("polydda")
     except PackageNotFoundError:
-        from service.app import VERSION
+        from service.api.app import VERSION
 
         return VERSION
 

@@ -3,7 +3,7 @@
 Start any number of them on any machines that share the data directory with the API:
 `POLYDDA_REDIS_URL=redis://host:6379/0 POLYDDA_DATA_DIR=/shared/polydda polydda worker`.
 The options are declared once (:func:`add_arguments`) for both `polydda worker` and
-`python -m service.worker`.
+`python -m service.jobs.worker`.
 """
 
 from __future__ import annotations
@@ -42,7 +42,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def build_parser() -> argparse.ArgumentParser:
-    """Arguments of `python -m service.worker` (the same as `polydda worker`)."""
+    """Arguments of `python -m service.jobs.worker` (the same as `polydda worker`)."""
     p = argparse.ArgumentParser(prog="polydda worker",
                                 description="work PolyDDA jobs from the Redis queue")
     add_arguments(p)
@@ -65,7 +65,7 @@ def run(args: argparse.Namespace) -> int:
     """Run one RQ worker until it is stopped (or the queue is empty with --burst).
 
     Redis must answer at the start; later outages are ridden out (reconnecting with
-    backoff, service.backends.rq_worker). Exit code 0; 2 for a malformed Redis URL; 1 when
+    backoff, service.jobs.rq_worker). Exit code 0; 2 for a malformed Redis URL; 1 when
     Redis cannot be reached at the start.
     """
     from service.settings import Settings
@@ -79,10 +79,10 @@ def run(args: argparse.Namespace) -> int:
            "POLYDDA_PROGRESS_INTERVAL": str(settings.progress_interval)}
     if "numpy" in sys.modules and any(os.environ.get(k) != v for k, v in env.items()):
         # started as `polydda worker`, whose CLI module loaded numpy (and its BLAS thread
-        # pool) already: become a fresh `python -m service.worker` (same pid) with `env`
+        # pool) already: become a fresh `python -m service.jobs.worker` (same pid) with `env`
         sys.stdout.flush()
         sys.stderr.flush()
-        os.execve(sys.executable, [sys.executable, "-m", "service.worker", *argv_of(args)],
+        os.execve(sys.executable, [sys.executable, "-m", "service.jobs.worker", *argv_of(args)],
                   {**os.environ, **env})
     os.environ.update(env)
     logging.basicConfig(level=args.log_level, stream=sys.stderr,
@@ -96,8 +96,8 @@ def run(args: argparse.Namespace) -> int:
     import engine.results.writer  # noqa: F401
     import engine.step.simulation  # noqa: F401
     import schemas.convert  # noqa: F401
-    import service.jobs  # noqa: F401
-    from service.backends.rq_worker import PolyddaWorker
+    import service.jobs.execute  # noqa: F401
+    from service.jobs.rq_worker import PolyddaWorker
 
     try:
         conn = Redis.from_url(settings.redis_url, socket_connect_timeout=5)
@@ -117,7 +117,7 @@ def run(args: argparse.Namespace) -> int:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    """Entry point of `python -m service.worker`; returns the exit code."""
+    """Entry point of `python -m service.jobs.worker`; returns the exit code."""
     return run(build_parser().parse_args(argv))
 
 

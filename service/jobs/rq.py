@@ -1,11 +1,11 @@
 """Scale-out backend: jobs on RQ workers (`polydda worker`) through one Redis queue.
 
-The API commits the job row, then enqueues `service.jobs.run_rq`. A worker writes progress
+The API commits the job row, then enqueues `service.jobs.execute.run_rq`. A worker writes progress
 and the outcome into the Redis hash `polydda:job:<id>` and its files into the shared data
 directory, and keeps the job's heartbeat key `polydda:alive:<id>` (TTL `rq_heartbeat_ttl`)
 while it runs. The supervisor thread copies those hashes into the job table; a running job
 whose heartbeat is gone while Redis has been up for a whole TTL lost its worker (killed,
-host gone) and is re-queued, at most `max_attempts` runs (service.backends.Backend
+host gone) and is re-queued, at most `max_attempts` runs (service.jobs.backend.Backend
 .requeue_or_fail). It marks jobs whose RQ job failed or was stopped, and delivers cancels:
 the cancel key again each tick (Redis may have lost it), RQ's stop-job command for a job
 that did not stop within `cancel_grace`, and cancels of queued jobs made while Redis was
@@ -20,8 +20,9 @@ import logging
 import time
 from typing import Any
 
-from service.backends import Backend
-from service.backends.store import (
+from service.jobs.backend import Backend
+from service.jobs.execute import alive_key, cancel_key, job_key
+from service.jobs.store import (
     ACCEPTED,
     ACTIVE,
     DISMISSED,
@@ -30,11 +31,10 @@ from service.backends.store import (
     RUNNING,
     JobRecord,
 )
-from service.jobs import alive_key, cancel_key, job_key
 
 log = logging.getLogger(__name__)
 
-RQ_FUNCTION = "service.jobs.run_rq"
+RQ_FUNCTION = "service.jobs.execute.run_rq"
 #: fields copied from a worker's Redis hash into the job table
 _SYNCED = ("status", "started", "finished", "updated", "progress", "step", "simulated_time",
            "duration", "message", "error_kind", "worker_pid")
@@ -133,7 +133,7 @@ class RqBackend(Backend):
         from rq import Worker
         from rq.utils import now
 
-        from service.backends.rq_worker import LIVE
+        from service.jobs.rq_worker import LIVE
 
         try:
             self.probe.ping()

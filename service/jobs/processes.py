@@ -24,7 +24,7 @@ from service.documents import (
     seismic_document,
     write_json_atomic,
 )
-from service.tasks import MODEL, Cancelled, Outcome, TaskContext
+from service.jobs.tasks import MODEL, Cancelled, Outcome, TaskContext
 
 if TYPE_CHECKING:
     from schemas.convert import BuildResult

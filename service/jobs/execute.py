@@ -1,9 +1,9 @@
 """The job function: run one process on a scene into a job directory, whatever the backend.
 
-A backend hands :func:`execute` a :class:`~service.tasks.TaskContext` that reports progress
-(throttled) and says when to stop; the process's runner (service.processes) writes the
+A backend hands :func:`execute` a :class:`~service.jobs.tasks.TaskContext` that reports progress
+(throttled) and says when to stop; the process's runner (service.jobs.processes) writes the
 artifacts (`result.h5` + `summary.json`, `fos.json`, `seismic.json` or `blocks.json`) and
-returns an :class:`~service.tasks.Outcome`. JSON artifacts are written to a temporary file
+returns an :class:`~service.jobs.tasks.Outcome`. JSON artifacts are written to a temporary file
 and renamed, so a reader never sees half a file; the HDF5 writer flushes as it goes.
 
 The RQ entry point (:func:`run_rq`) runs in RQ's work horse: it keeps a heartbeat key in
@@ -27,8 +27,8 @@ from pathlib import Path
 from typing import Any
 
 from service.documents import write_json_atomic
-from service.processes import MAIN_ARTIFACTS, PROCESSES, RESULT_FILE
-from service.tasks import MODEL, SYSTEM, Cancelled, Outcome, TaskContext
+from service.jobs.processes import MAIN_ARTIFACTS, PROCESSES, RESULT_FILE
+from service.jobs.tasks import MODEL, SYSTEM, Cancelled, Outcome, TaskContext
 
 __all__ = ["MAIN_ARTIFACTS", "MODEL", "PROCESSES", "RESULT_FILE", "SYSTEM", "Cancelled",
            "Outcome", "RedisContext", "TaskContext", "execute", "run_rq", "write_json_atomic"]

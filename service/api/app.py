@@ -3,7 +3,7 @@
 `create_app` assembles the API from service.api (problems, dependencies, submission,
 results, metrics, OpenAPI, routes) around one Settings object; the job table and the backend
 start with its lifespan, after the data directory's lock is taken (one server per data
-directory). Run with `serve(host, port)` or `uvicorn --factory service.app:create_app`.
+directory). Run with `serve(host, port)` or `uvicorn --factory service.api.app:create_app`.
 """
 
 from __future__ import annotations
@@ -25,14 +25,16 @@ from service.api.dependencies import BackendDep, RateLimiter, RootDep, StoreDep,
 from service.api.openapi import openapi_builder
 from service.api.problems import Problem, install_handlers
 from service.api.routes import router
-from service.backends import make_backend
-from service.backends.store import JobStore
-from service.datadir import DataDirBusy, DataDirLock
+from service.jobs.backend import Backend
+from service.jobs.datadir import DataDirBusy, DataDirLock
+from service.jobs.embedded import EmbeddedBackend
+from service.jobs.rq import RqBackend
+from service.jobs.store import JobStore
 from service.settings import Settings
 
 log = logging.getLogger(__name__)
 
-STATIC_DIR = Path(__file__).parent / "static"
+STATIC_DIR = Path(__file__).parents[1] / "static"
 VERSION = "0.1.0"
 _DOCS_HTML = """<!doctype html>
 <html lang="en"><head><meta charset="utf-8"><title>PolyDDA API</title>
@@ -43,6 +45,13 @@ _DOCS_HTML = """<!doctype html>
 <script src="{root}/static/docs-init.js"></script>
 </body></html>
 """
+
+
+def make_backend(settings: Settings, store: JobStore) -> Backend:
+    """The backend `settings.backend` names."""
+    if settings.backend == "rq":
+        return RqBackend(settings, store)
+    return EmbeddedBackend(settings, store)
 
 
 def create_app(settings: Settings | None = None, lock: DataDirLock | None = None) -> FastAPI:
@@ -150,7 +159,7 @@ def _service_routes(app: FastAPI, settings: Settings) -> None:
 
 def home_page(request: Request, settings: Settings, store: JobStore, root: str) -> str:
     """The home page HTML: the caller's newest jobs, or a key form when keys are needed."""
-    from service.pages import home_html
+    from service.api.pages import home_html
 
     try:
         client = _client(request, settings, request.headers.get("x-api-key"))
