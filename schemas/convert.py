@@ -142,7 +142,7 @@ def _polygon_problem(poly: np.ndarray, normal: np.ndarray, point: np.ndarray) ->
 
 
 def _joint_planes(scene: Scene, domain: Polyhedron, p: Problems) -> list[JointPlane]:
-    from engine.geometry.cutting import disc_polygon, joint_set_planes
+    from engine.geometry.joints import disc_polygon, joint_set_planes
 
     planes: list[JointPlane] = []
     for k, j in enumerate(scene.joints):

@@ -17,7 +17,7 @@ from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
-from engine.geometry.joints import JointPlane
+from engine.geometry.joints import JointPlane, plane_basis, unit
 from engine.geometry.polyhedron import (
     FACE_TAG_BOUNDARY,
     ConvexPiece,
@@ -47,24 +47,6 @@ class CutResult:
 # --------------------------------------------------------------------------- small helpers
 
 
-def _unit(v: np.ndarray | Sequence[float]) -> np.ndarray:
-    """Unit vector `(3,)` along `v`; raises on a zero vector."""
-    a = np.asarray(v, dtype=float).reshape(3)
-    n = float(np.linalg.norm(a))
-    if not n > 0:
-        raise ValueError("a plane normal must be a non-zero vector")
-    return a / n
-
-
-def _plane_basis(normal: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Two unit vectors `u, v (3,)` spanning the plane, with `u x v = normal`."""
-    n = _unit(normal)
-    helper = np.array([1.0, 0.0, 0.0]) if abs(n[0]) < 0.9 else np.array([0.0, 1.0, 0.0])
-    u = np.cross(helper, n)
-    u /= np.linalg.norm(u)
-    return u, np.cross(n, u)
-
-
 def _points_in_polygon(pts: np.ndarray, poly: np.ndarray) -> np.ndarray:
     """`(p,) bool`: which 2-D points `(p, 2)` lie inside the polygon `(m, 2)` (even-odd)."""
     x, y = pts[:, 0][:, None], pts[:, 1][:, None]
@@ -74,60 +56,6 @@ def _points_in_polygon(pts: np.ndarray, poly: np.ndarray) -> np.ndarray:
     with np.errstate(divide="ignore", invalid="ignore"):
         xi = x0 + (y - y0) * (x1 - x0) / (y1 - y0)
     return (np.count_nonzero(crosses & (x < xi), axis=1) % 2) == 1
-
-
-def disc_polygon(
-    center: np.ndarray | Sequence[float],
-    normal: np.ndarray | Sequence[float],
-    radius: float,
-    sides: int = 24,
-) -> np.ndarray:
-    """`(sides, 3)` polygon, counter-clockwise about `normal`, circumscribing a disc.
-
-    The disc of `radius` is inscribed (the polygon's edges touch the circle), so the
-    polygon covers the whole disc: a joint is never made smaller than asked.
-    """
-    if sides < 3 or radius <= 0:
-        raise ValueError("a disc polygon needs at least 3 sides and a positive radius")
-    u, v = _plane_basis(np.asarray(normal, float))
-    r = radius / np.cos(np.pi / sides)
-    t = 2.0 * np.pi * np.arange(sides) / sides
-    return np.asarray(center, float)[None] + r * (
-        np.cos(t)[:, None] * u[None] + np.sin(t)[:, None] * v[None]
-    )
-
-
-def joint_set_planes(
-    normal: np.ndarray | Sequence[float],
-    point: np.ndarray | Sequence[float],
-    spacing: float,
-    domain: Polyhedron,
-    tag: int,
-    extent: np.ndarray | None = None,
-) -> list[JointPlane]:
-    """Members of a parallel joint set that cross the domain's bounding box.
-
-    Member k passes through `point + k * spacing * normal`; its extent `(m, 3)` (or
-    None: persistent) is `extent` moved by the same offset.
-    """
-    if not spacing > 0:
-        raise ValueError("joint spacing must be positive")
-    n = _unit(normal)
-    p0 = np.asarray(point, dtype=float).reshape(3)
-    lo, hi = domain.bounds
-    corners = np.array([[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1])
-                        for z in (lo[2], hi[2])])
-    s = (corners - p0) @ n
-    margin = 1e-9 * max(float(np.ptp(corners, axis=0).max()), 1e-12)
-    k0 = int(np.ceil((s.min() + margin) / spacing))
-    k1 = int(np.floor((s.max() - margin) / spacing))
-    ext = None if extent is None else np.asarray(extent, dtype=float)
-    out = []
-    for k in range(k0, k1 + 1):
-        shift = k * spacing * n
-        out.append(JointPlane(normal=n.copy(), point=p0 + shift, tag=tag,
-                              extent=None if ext is None else ext + shift))
-    return out
 
 
 # --------------------------------------------------------------------------- planes
@@ -166,7 +94,7 @@ class _Planes:
 
     def add(self, normal: np.ndarray, offset: float, member: int | None = None) -> int:
         """Id of the plane `normal . x = offset`, registering it if new."""
-        n = _unit(normal)
+        n = unit(normal)
         gid = -1
         if self.group_normals:
             g = self._normals[: len(self.group_normals)]
@@ -230,7 +158,7 @@ def _chain_loop(nxt: dict[int, int]) -> list[int] | None:
 def _cap_by_angle(pts: np.ndarray, ids: list[int], normal: np.ndarray) -> list[int]:
     """On-plane points ordered counter-clockwise about `normal` (fallback cap builder)."""
     p = pts[ids]
-    u, v = _plane_basis(normal)
+    u, v = plane_basis(normal)
     rel = p - p.mean(axis=0)
     ang = np.arctan2(rel @ v, rel @ u)
     return [ids[k] for k in np.argsort(ang)]
@@ -737,10 +665,10 @@ def _joints_of(joints: Sequence[JointPlane], planes: _Planes) -> tuple[list[_Joi
     out: list[_Joint] = []
     cut: list[int] = []
     for j, jp in enumerate(joints):
-        n = _unit(jp.normal)
+        n = unit(jp.normal)
         p0 = np.asarray(jp.point, dtype=float).reshape(3)
         cut.append(planes.add(n, float(n @ p0), member=j))
-        u, v = _plane_basis(n)
+        u, v = plane_basis(n)
         poly2 = None
         if jp.extent is not None:
             ext = np.asarray(jp.extent, dtype=float).reshape(-1, 3)
@@ -1070,7 +998,7 @@ def _attach_pieces(
         ids[~hit] = len(block.vertices) + gm
     verts = np.vstack([block.vertices, extra])
     fn, fo = block.face_normals, block.face_offsets
-    u_v = [_plane_basis(n) for n in fn]
+    u_v = [plane_basis(n) for n in fn]
     pieces = []
     s = 0
     for c in cells:
