@@ -10,7 +10,7 @@ import time
 
 import numpy as np
 
-from engine.geometry.cutting import cut_blocks
+from engine.geometry.cutting.cut import cut_blocks
 from engine.geometry.joints import joint_set_planes
 from engine.geometry.polyhedron import Polyhedron, dip_normal
 
