@@ -10,7 +10,8 @@ import time
 
 import numpy as np
 
-from engine.geometry.cutting import cut_blocks, joint_set_planes
+from engine.geometry.cutting.cut import cut_blocks
+from engine.geometry.joints import joint_set_planes
 from engine.geometry.polyhedron import Polyhedron, dip_normal
 
 SETS = [(45.0, 135.0), (45.0, 315.0), (75.0, 45.0)]  #: (dip, dip direction) in degrees

@@ -21,7 +21,8 @@ import numpy as np
 from benchmarks import harness as h
 from benchmarks.bench_cutting import SETS, cube
 from benchmarks.bench_detection import cube_on_slab, jittered_grid, time_detection, time_per_call
-from engine.geometry.cutting import cut_blocks, joint_set_planes
+from engine.geometry.cutting.cut import cut_blocks
+from engine.geometry.joints import joint_set_planes
 from engine.geometry.polyhedron import Polyhedron, dip_normal
 
 #: spacing (m) of the three joint sets in the 100 m cube: ~100, ~1,000 and ~5,000 blocks

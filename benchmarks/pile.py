@@ -8,7 +8,8 @@ from pathlib import Path
 import numpy as np
 
 from benchmarks import harness as h
-from engine.geometry.cutting import cut_blocks, joint_set_planes
+from engine.geometry.cutting.cut import cut_blocks
+from engine.geometry.joints import joint_set_planes
 from engine.geometry.polyhedron import dip_normal
 from engine.geometry.shapes import box, convex_hull
 from engine.model import AnalysisControls, Block, JointMaterial, Material, Model

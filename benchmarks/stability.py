@@ -14,7 +14,7 @@ import numpy as np
 from benchmarks import harness as h
 from benchmarks.cases import DOWN_DIP, INCLINE_D1, RHO, W, fall_model, incline_model
 from benchmarks.pile import pile_model
-from engine.geometry.cutting import convex_decomposition
+from engine.geometry.cutting.cut import convex_decomposition
 from engine.geometry.polyhedron import rotation_matrix
 from engine.geometry.shapes import box, prism
 from engine.model import AnalysisControls, Block, JointMaterial, Model

@@ -142,7 +142,7 @@ def _polygon_problem(poly: np.ndarray, normal: np.ndarray, point: np.ndarray) ->
 
 
 def _joint_planes(scene: Scene, domain: Polyhedron, p: Problems) -> list[JointPlane]:
-    from engine.geometry.cutting import disc_polygon, joint_set_planes
+    from engine.geometry.joints import disc_polygon, joint_set_planes
 
     planes: list[JointPlane] = []
     for k, j in enumerate(scene.joints):
@@ -203,7 +203,7 @@ def _cut_domain(scene: Scene, p: Problems, warnings: list[str]) -> list[Polyhedr
     planes = _joint_planes(scene, domain, p)
     if p:
         return []
-    from engine.geometry.cutting import cut_blocks
+    from engine.geometry.cutting.cut import cut_blocks
 
     result = cut_blocks(domain, planes, min_block_volume=d.min_block_volume,
                         min_block_width=d.min_block_width)
@@ -234,7 +234,7 @@ def _explicit_blocks(scene: Scene, p: Problems) -> list[Polyhedron | None]:
             continue
         poly = Polyhedron.from_faces(b.vertices, b.faces)
         if not poly.is_convex:
-            from engine.geometry.cutting import convex_decomposition
+            from engine.geometry.cutting.cut import convex_decomposition
 
             poly = convex_decomposition(poly)
         out.append(poly)

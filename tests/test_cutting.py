@@ -7,14 +7,8 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from engine.geometry.cutting import (
-    CutResult,
-    convex_decomposition,
-    cut_blocks,
-    disc_polygon,
-    joint_set_planes,
-)
-from engine.geometry.joints import JointPlane
+from engine.geometry.cutting.cut import CutResult, convex_decomposition, cut_blocks
+from engine.geometry.joints import JointPlane, disc_polygon, joint_set_planes
 from engine.geometry.polyhedron import (
     FACE_TAG_BOUNDARY,
     Polyhedron,

@@ -22,7 +22,7 @@ from engine.contact.constraints import (
     assign_joint_materials,
 )
 from engine.contact.detection import aabb_pairs, decode_feature, detect_contacts, feature_code
-from engine.geometry.cutting import convex_decomposition
+from engine.geometry.cutting.cut import convex_decomposition
 from engine.geometry.polyhedron import (
     ConvexPiece,
     Polyhedron,

@@ -171,7 +171,7 @@ def test_polyhedron_from_faces_keeps_tags_and_moves() -> None:
 
 def test_width_is_the_thinnest_extent() -> None:
     """A cube is as wide as its side, a plate as its thickness, an L prism as its arms."""
-    from engine.geometry.cutting import convex_decomposition
+    from engine.geometry.cutting.cut import convex_decomposition
 
     assert box([0, 0, 0], [1, 1, 1]).width == pytest.approx(1.0)
     assert box([0, 0, 0], [5, 5, 0.05]).width == pytest.approx(0.05)

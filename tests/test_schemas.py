@@ -463,7 +463,7 @@ def test_cut_block_estimate_before_cutting(monkeypatch: pytest.MonkeyPatch) -> N
     def no_cutting(*args: Any, **kwargs: Any) -> None:
         raise AssertionError("the domain was cut")
 
-    monkeypatch.setattr("engine.geometry.cutting.cut_blocks", no_cutting)
+    monkeypatch.setattr("engine.geometry.cutting.cut.cut_blocks", no_cutting)
     for j in rock["joints"]:
         j["spacing"] = 0.3
     assert problems_of(rock) == [

@@ -392,7 +392,8 @@ def test_tensile_strength_holds_hanging_block(tension: float, holds: bool) -> No
 def _cut_rock_mass(friction_deg: float) -> Model:
     """A 10 m cube cut by three joint sets at 5 m (37 blocks, every one touching its
     neighbours) resting on a fixed base slab."""
-    from engine.geometry.cutting import cut_blocks, joint_set_planes
+    from engine.geometry.cutting.cut import cut_blocks
+    from engine.geometry.joints import joint_set_planes
     from engine.geometry.polyhedron import dip_normal
 
     domain = box([0, 0, 0], [10, 10, 10])
