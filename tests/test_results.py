@@ -21,7 +21,9 @@ from scipy.spatial.transform import Rotation
 from engine.contact.constraints import ContactSet
 from engine.geometry.polyhedron import Polyhedron
 from engine.model import Block, Model
-from engine.results.writer import ResultWriter, open_result, point_velocities, recover_result
+from engine.results.layout import point_velocities
+from engine.results.reader import open_result, recover_result
+from engine.results.writer import ResultWriter
 from engine.step.frame import Frame
 
 CUBE_FACES = [[0, 3, 2, 1], [4, 5, 6, 7], [0, 1, 5, 4], [1, 2, 6, 5], [2, 3, 7, 6], [3, 0, 4, 7]]

@@ -1,38 +1,13 @@
-"""Run results as one HDF5 file: an incremental writer (a Recorder) and a reader.
+"""Writing a result file: :class:`ResultWriter`, the engine's Recorder, and the file's
+publication under its name.
 
 The writer appends the recorded steps to resizable, chunked, gzip+shuffle datasets in
 HDF5 single-writer/multiple-reader (SWMR) mode, in batches, each followed by a flush (at
 the first step, then at least every `flush_seconds` of wall time, default 1 s, or every
 `flush_every` steps), so a run that is killed keeps every flushed step and its status
 stays "running". The file appears at its path (by a rename) only once its static part is
-written; an existing file is replaced, never rewritten in place. Layout (K steps,
-n blocks, V surface vertices, F faces, C contacts in all):
-
-- root attrs: `format` "polydda-result", `format_version`, `engine_version`,
-  `schema_version` (when known), `status`, `message`, `summary` (JSON text, set by end)
-- `/scene`: `json` (scalar text) with attr `sha256` (hex digest of the UTF-8 text)
-- `/blocks`: `vertices (V,3)` initial surface vertices of all blocks, `vertex_offsets (n+1,)`,
-  `face_offsets (F+1,)`, `face_connectivity` global indices into `/blocks/vertices`,
-  `face_block_offsets (n+1,)` (block b owns faces `face_block_offsets[b]:[b+1]`),
-  `face_tags (F,)`, `names (n,)`, `material (n,)`, `fixed (n,)`, `centroid (n,3)`,
-  `volume (n,)`
-- `/steps`: `step`, `time`, `dt`, `open_close_iterations`, `max_penetration` `(K,)` and
-  `energies/<name> (K,)` J
-- `/history`: `centroid (K,n,3)`, `rotation (K,n,3)`, `affine (K,n,3,3)`,
-  `velocity (K,n,12)`, `stress (K,n,6)`; vertices are `centroid + affine @ (X0 - c0)`
-- `/contacts` (attr `recorded`): `step_offsets (K+1,)`, step k is rows
-  `step_offsets[k]:step_offsets[k+1]` of `block_i`, `block_j`, `kind`, `mode`,
-  `point_i (C,3)`, `point_j`, `normal`, `tangent`, `gap (C,)`, `normal_force (C,)`,
-  `shear_force (C,3)`
-- `/bolts` (only for a model with rock bolts, b of them): `names (b,)`, `block (b,)`,
-  `anchor_block (b,)` (-1: the ground), `head (b,3)`, `anchor (b,3)` m, `pretension (b,)`,
-  `capacity (b,)` N; per step `axial_force (K,b)` N (tension positive), `shear_force (K,b)` N,
-  `status (K,b)` (0 elastic, 1 yielded, 2 broken)
-- `/water` (only for a model with water in its joints): per step `resultant (K,n,3)` N, the
-  resultant water force on each block
-- `/VTKHDF`: VTKHDF 2.2 temporal PolyData for ParaView (block faces as polygons, points
-  written per step, connectivity shared by all steps; point data `block_id`,
-  `displacement`, `velocity`; cell data `block_id`, `face_tag`)
+written; an existing file is replaced, never rewritten in place. The layout is
+:mod:`engine.results.layout`; the reader is :mod:`engine.results.reader`.
 """
 
 from __future__ import annotations
@@ -45,7 +20,6 @@ import secrets
 import time
 import zlib
 from collections import deque
-from collections.abc import Iterator
 from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
@@ -55,18 +29,27 @@ from typing import Any
 import h5py
 import numpy as np
 
-from engine.geometry._transform_kernels import block_vertices, point_motions
 from engine.model import Model
+from engine.results.layout import (
+    BOLT_FIELDS,
+    CONTACT_FIELDS,
+    FORMAT,
+    FORMAT_VERSION,
+    HISTORY_SHAPES,
+    LIBVER,
+    STATUSES,
+    VTKHDF_VERSION,
+    Static,
+    engine_version,
+    flatten_model,
+    json_default,
+    point_velocities,
+    transform_points,
+)
 from engine.step.frame import ENERGY_NAMES, Frame
 
 log = logging.getLogger(__name__)
 
-FORMAT = "polydda-result"
-FORMAT_VERSION = 1
-VTKHDF_VERSION = (2, 2)
-STATUSES = ("completed", "failed", "cancelled", "stopped")
-#: HDF5 file-format bounds: 1.10 is the oldest that has SWMR; ParaView >= 5.x reads it
-LIBVER = ("v110", "v110")
 #: Chunking policy. HDF5 in SWMR mode does not reuse freed file space, so a compressed chunk
 #: that is rewritten (it grew) leaks its old copy. Steps of at least _COMPRESS_MIN bytes get
 #: their own compressed chunks, written once; smaller ones share uncompressed chunks of about
@@ -82,121 +65,8 @@ _MAX_INFLIGHT = 2
 #: contacts (a variable count per step) are compressed in models of at least this many
 #: blocks, in chunks of `n_blocks` rows (a rewritten partial chunk leaks < 1 chunk per step)
 _CONTACT_COMPRESS_BLOCKS = 100
+#: names and the scene JSON are UTF-8 strings in the file
 _STR = h5py.string_dtype("utf-8")
-_HISTORY_SHAPES = {"centroid": (3,), "rotation": (3,), "affine": (3, 3),
-                   "velocity": (12,), "stress": (6,)}
-#: per-step bolt datasets under /bolts: frame attribute and dtype
-_BOLT_FIELDS: dict[str, tuple[str, type]] = {
-    "axial_force": ("bolt_axial_force", np.float64),
-    "shear_force": ("bolt_shear_force", np.float64),
-    "status": ("bolt_status", np.int8),
-}
-_CONTACT_FIELDS: dict[str, tuple[tuple[int, ...], type]] = {
-    "block_i": ((), np.int32), "block_j": ((), np.int32), "kind": ((), np.int8),
-    "mode": ((), np.int8), "point_i": ((3,), np.float64), "point_j": ((3,), np.float64),
-    "normal": ((3,), np.float64), "tangent": ((3,), np.float64), "gap": ((), np.float64),
-    "normal_force": ((), np.float64), "shear_force": ((3,), np.float64),
-}
-
-
-def _engine_version() -> str:
-    try:
-        from importlib.metadata import version
-
-        return version("polydda")
-    except Exception:  # not installed (source checkout)
-        return "unknown"
-
-
-def _json_default(obj: Any) -> Any:
-    """JSON encoding of numpy scalars and arrays (summaries carry them)."""
-    if isinstance(obj, np.generic):
-        return obj.item()
-    if isinstance(obj, np.ndarray):
-        return obj.tolist()
-    if isinstance(obj, Path):
-        return str(obj)
-    raise TypeError(f"{type(obj).__name__} is not JSON serializable")
-
-
-# --------------------------------------------------------------------------- writer
-
-
-@dataclass
-class _Static:
-    """Initial geometry of all blocks, flattened (what the writer and plots need)."""
-
-    vertices: np.ndarray  # (V, 3)
-    vertex_offsets: np.ndarray  # (n+1,)
-    vertex_block: np.ndarray  # (V,) block of each vertex
-    face_offsets: np.ndarray  # (F+1,)
-    face_connectivity: np.ndarray  # global vertex ids
-    face_block_offsets: np.ndarray  # (n+1,)
-    face_tags: np.ndarray  # (F,)
-    centroid: np.ndarray  # (n, 3) initial centroids
-
-
-def _flatten_model(model: Model) -> _Static:
-    """Surface vertices and faces of all blocks renumbered into global arrays."""
-    verts, vcount, fptr, fconn, fcount, tags, cents = [], [], [], [], [], [], []
-    base = 0
-    for block in model.blocks:
-        poly = block.polyhedron
-        used = poly.surface_vertex_ids
-        remap = np.full(len(poly.vertices), -1, dtype=np.int64)
-        remap[used] = np.arange(len(used)) + base
-        verts.append(poly.vertices[used])
-        vcount.append(len(used))
-        fptr.append(np.diff(poly.face_indptr))
-        fconn.append(remap[poly.face_indices])
-        fcount.append(poly.n_faces)
-        tags.append(np.asarray(poly.face_tags, dtype=np.int64))
-        cents.append(poly.centroid)
-        base += len(used)
-    n = len(model.blocks)
-
-    def offsets(counts: list[int] | np.ndarray) -> np.ndarray:
-        out = np.zeros(len(counts) + 1, dtype=np.int64)
-        np.cumsum(counts, out=out[1:])
-        return out
-
-    face_sizes = np.concatenate(fptr) if fptr else np.zeros(0, np.int64)
-    vo = offsets(vcount)
-    return _Static(
-        vertices=np.concatenate(verts) if verts else np.zeros((0, 3)),
-        vertex_offsets=vo,
-        vertex_block=np.repeat(np.arange(n), np.diff(vo)),
-        face_offsets=offsets(face_sizes),
-        face_connectivity=np.concatenate(fconn) if fconn else np.zeros(0, np.int64),
-        face_block_offsets=offsets(fcount),
-        face_tags=np.concatenate(tags) if tags else np.zeros(0, np.int64),
-        centroid=np.array(cents, dtype=float).reshape(n, 3),
-    )
-
-
-def point_velocities(
-    points: np.ndarray, centroids: np.ndarray, velocity: np.ndarray
-) -> np.ndarray:
-    """Velocity `(p, 3)` of points `(p, 3)` from their block's `centroids (p, 3)` and rates
-    `velocity (p, 12)`: T(x) v (:func:`engine.geometry._transform_kernels.point_motion`)."""
-    return point_motions(np.ascontiguousarray(points, dtype=float),
-                         np.ascontiguousarray(centroids, dtype=float),
-                         np.ascontiguousarray(velocity, dtype=float))
-
-
-def transform_points(rel0: np.ndarray, vertex_block: np.ndarray, centroids: np.ndarray,
-                     affine: np.ndarray) -> np.ndarray:
-    """Moved points `c + A (X0 − c0)` `(..., p, 3)` of points `rel0 = X0 − c0 (p, 3)` of
-    blocks `vertex_block (p,)`, for block `centroids (..., n, 3)` and `affine (..., n, 3,
-    3)`; leading axes (steps) broadcast
-    (:func:`engine.geometry._transform_kernels.block_vertices`)."""
-    lead = centroids.shape[:-2]
-    cent = np.ascontiguousarray(centroids, dtype=float).reshape(-1, *centroids.shape[-2:])
-    aff = np.ascontiguousarray(affine, dtype=float).reshape(-1, *affine.shape[-3:])
-    rel = np.ascontiguousarray(rel0, dtype=float)
-    vb = np.ascontiguousarray(vertex_block, dtype=np.int64)
-    out = np.stack([block_vertices(c, a, vb, rel) for c, a in zip(cent, aff, strict=True)])
-    return out.reshape(*lead, len(rel), 3)
 
 
 @dataclass
@@ -324,7 +194,7 @@ class ResultWriter:
         self.n_flushed = 0
         self._file: h5py.File | None = None
         self._inode: tuple[int, int] | None = None
-        self._static: _Static | None = None
+        self._static: Static | None = None
         self._ended = False
         self._n_contacts = 0
         self._ignored_energies: set[str] = set()
@@ -420,7 +290,7 @@ class ResultWriter:
 
     def _write_static(self, f: h5py.File, model: Model, scene_json: str | None) -> None:
         """Root attributes, scene, initial geometry and empty per-step datasets; SWMR on."""
-        st = self._static = _flatten_model(model)
+        st = self._static = flatten_model(model)
         n, nv = len(model.blocks), len(st.vertices)
         self._n_blocks = n
 
@@ -434,7 +304,7 @@ class ResultWriter:
                 pass
         f.attrs["format"] = FORMAT
         f.attrs["format_version"] = FORMAT_VERSION
-        f.attrs["engine_version"] = _engine_version()
+        f.attrs["engine_version"] = engine_version()
         if schema is not None:
             f.attrs["schema_version"] = schema
         f.attrs["status"] = "running"
@@ -470,7 +340,7 @@ class ResultWriter:
             self._ds(e, name, (), np.float64)
 
         g = f.create_group("history")
-        for name, tail in _HISTORY_SHAPES.items():
+        for name, tail in HISTORY_SHAPES.items():
             self._ds(g, name, (n, *tail), np.float64)
 
         g = f.create_group("contacts")
@@ -478,7 +348,7 @@ class ResultWriter:
         so = self._ds(g, "step_offsets", (), np.int64)
         self._append(so, np.zeros(1, np.int64))
         if self.record_contacts:
-            for name, (tail, dtype) in _CONTACT_FIELDS.items():
+            for name, (tail, dtype) in CONTACT_FIELDS.items():
                 self._ds(g, name, tail, dtype, contact=True)
 
         self._begin_loads(f, model)
@@ -500,7 +370,7 @@ class ResultWriter:
             g["anchor"] = np.array([b.anchor for b in model.bolts], float).reshape(nb, 3)
             g["pretension"] = np.array([b.pretension for b in model.bolts], float)
             g["capacity"] = np.array([b.capacity for b in model.bolts], float)
-            for name, (_, dtype) in _BOLT_FIELDS.items():
+            for name, (_, dtype) in BOLT_FIELDS.items():
                 self._ds(g, name, (nb,), dtype)
 
         if model.water is not None:
@@ -570,11 +440,11 @@ class ResultWriter:
         arrays = {name: np.array(getattr(frame, attr), dtype=float) for name, attr in
                   (("centroid", "centroids"), ("rotation", "rotation"), ("affine", "affine"),
                    ("velocity", "velocity"), ("stress", "stress"))}
-        for name, tail in _HISTORY_SHAPES.items():
+        for name, tail in HISTORY_SHAPES.items():
             if arrays[name].shape != (n, *tail):
                 raise ValueError(f"frame.{name} has shape {arrays[name].shape}, "
                                  f"expected {(n, *tail)}")
-        for name, (attr, dtype) in _BOLT_FIELDS.items() if self._n_bolts else ():
+        for name, (attr, dtype) in BOLT_FIELDS.items() if self._n_bolts else ():
             value = getattr(frame, attr)
             arrays[f"bolts/{name}"] = (np.full(self._n_bolts, np.nan) if value is None
                                        else np.array(value, dtype=dtype))
@@ -586,13 +456,13 @@ class ResultWriter:
         c = 0 if cs is None or not self.record_contacts else len(cs)
         if c:
             assert cs is not None
-            vals = {name: getattr(cs, name) for name in _CONTACT_FIELDS
+            vals = {name: getattr(cs, name) for name in CONTACT_FIELDS
                     if name not in ("normal_force", "shear_force")}
             vals["normal_force"] = (np.full(c, np.nan) if frame.normal_force is None
                                     else frame.normal_force)
             vals["shear_force"] = (np.full((c, 3), np.nan) if frame.shear_force is None
                                    else frame.shear_force)
-            for name, (tail, dtype) in _CONTACT_FIELDS.items():
+            for name, (tail, dtype) in CONTACT_FIELDS.items():
                 contacts[name] = np.array(vals[name], dtype=dtype).reshape(c, *tail)
         self._n_contacts += c
         extra = set(frame.energies) - set(ENERGY_NAMES) - self._ignored_energies
@@ -656,16 +526,16 @@ class ResultWriter:
         assert st is not None
         m = len(pend)
         writes: list[tuple[str, np.ndarray]] = []
-        hist = {name: np.stack([p.arrays[name] for p in pend]) for name in _HISTORY_SHAPES}
+        hist = {name: np.stack([p.arrays[name] for p in pend]) for name in HISTORY_SHAPES}
         writes += [(f"history/{name}", a) for name, a in hist.items()]
         if self._n_bolts:
             writes += [(f"bolts/{name}", np.stack([p.arrays[f"bolts/{name}"] for p in pend]))
-                       for name in _BOLT_FIELDS]
+                       for name in BOLT_FIELDS]
         if self._water:
             writes.append(("water/resultant",
                            np.stack([p.arrays["water/resultant"] for p in pend])))
         if self.record_contacts:
-            for name in _CONTACT_FIELDS:
+            for name in CONTACT_FIELDS:
                 parts = [p.contacts[name] for p in pend if p.contacts]
                 if parts:
                     writes.append((f"contacts/{name}", np.concatenate(parts)))
@@ -751,7 +621,7 @@ class ResultWriter:
             raise ValueError(f"status must be one of {STATUSES}, not {status!r}")
         if self._file is None or self._ended:
             raise RuntimeError("end() needs begin() first and may be called once")
-        text = json.dumps(summary if summary is not None else {}, default=_json_default)
+        text = json.dumps(summary if summary is not None else {}, default=json_default)
         try:
             self.flush()
         finally:
@@ -784,325 +654,3 @@ class ResultWriter:
             else:
                 self.end("stopped", "the recorder was closed before the run ended")
 
-
-# --------------------------------------------------------------------------- reader
-
-
-def _text(value: Any) -> str:
-    return value.decode("utf-8") if isinstance(value, bytes) else str(value)
-
-
-class Result:
-    """Read-only view of a result file (finished, still being written, or from a killed run).
-
-    Steps count only when every per-step dataset holds them; call :meth:`refresh` to see
-    steps a live writer added since opening.
-    """
-
-    def __init__(self, path: str | os.PathLike[str]) -> None:
-        self.path = Path(path)
-        self._file = self._open(self.path)
-        f = self._file
-        if _text(f.attrs.get("format", "")) != FORMAT:
-            self._file.close()
-            raise ValueError(f"{self.path} is not a {FORMAT} file")
-        b = f["blocks"]
-        self.format_version = int(f.attrs["format_version"])
-        self.engine_version = _text(f.attrs.get("engine_version", "unknown"))
-        sv = f.attrs.get("schema_version")
-        self.schema_version = None if sv is None else _text(sv)
-        self.block_names: list[str] = [_text(x) for x in b["names"][()]]
-        self.n_blocks = len(self.block_names)
-        self.material = b["material"][()]
-        self.fixed = b["fixed"][()]
-        self.volume = b["volume"][()]
-        self.initial_centroids = b["centroid"][()]
-        self._x0 = b["vertices"][()]
-        self._voff = b["vertex_offsets"][()]
-        self._vblock = np.repeat(np.arange(self.n_blocks), np.diff(self._voff))
-        self._foff = b["face_offsets"][()]
-        self._fconn = b["face_connectivity"][()]
-        self._fboff = b["face_block_offsets"][()]
-        self.face_tags = b["face_tags"][()]
-        self.n_steps = 0
-        self._cache: dict[str, np.ndarray] = {}
-        self.refresh()
-
-    @staticmethod
-    def _open(path: Path) -> h5py.File:
-        """Open read-only: SWMR read first (live or killed writer), then without file locks."""
-        errors = []
-        for kw in ({"swmr": True}, {"swmr": True, "locking": False}, {"locking": False}):
-            try:
-                return h5py.File(path, "r", **kw)
-            except OSError as exc:
-                if not path.exists():
-                    raise
-                if str(exc) not in errors:
-                    errors.append(str(exc))
-        raise OSError(f"cannot open {path}: {'; '.join(errors)}")
-
-    # --- bookkeeping
-    def _per_step(self) -> Iterator[h5py.Dataset]:
-        f = self._file
-        yield from (f["steps"][k] for k in ("step", "time", "dt", "open_close_iterations",
-                                            "max_penetration"))
-        yield from f["steps/energies"].values()
-        yield from f["history"].values()
-        if "bolts" in f:
-            yield from (f["bolts"][name] for name in _BOLT_FIELDS)
-        if "water" in f:
-            yield f["water/resultant"]
-        yield f["VTKHDF/Steps/Values"]
-
-    def refresh(self) -> int:
-        """Re-read the number of complete steps (grows while a writer is running)."""
-        f = self._file
-        if f.swmr_mode:
-            for ds in self._per_step():
-                ds.refresh()
-            for ds in f["contacts"].values():
-                ds.refresh()
-            f["VTKHDF/Points"].refresh()
-        k = min(ds.shape[0] for ds in self._per_step())
-        so = f["contacts/step_offsets"]
-        k = min(k, so.shape[0] - 1)
-        if self.contacts_recorded and k > 0:
-            rows = min(ds.shape[0] for name, ds in f["contacts"].items()
-                       if name != "step_offsets")
-            k = int(np.searchsorted(so[: k + 1], rows, side="right")) - 1
-        self.n_steps = max(k, 0)
-        self._cache = {}
-        return self.n_steps
-
-    def _read(self, path: str) -> np.ndarray:
-        """Dataset `path` cut to the complete steps (cached until refresh)."""
-        if path not in self._cache:
-            self._cache[path] = self._file[path][: self.n_steps]
-        return self._cache[path]
-
-    def close(self) -> None:
-        """Close the file (also done by the context manager)."""
-        self._file.close()
-
-    def __enter__(self) -> Result:
-        return self
-
-    def __exit__(self, *exc: object) -> None:
-        self.close()
-
-    # --- run metadata
-    @property
-    def status(self) -> str:
-        """'running' (still going or killed), 'completed', 'failed', 'cancelled', 'stopped'."""
-        return _text(self._file.attrs["status"])
-
-    @property
-    def message(self) -> str:
-        """Why the run ended as it did (empty while running)."""
-        return _text(self._file.attrs.get("message", ""))
-
-    @property
-    def summary(self) -> dict[str, Any] | None:
-        """The run summary given to `end()`, or None while the run has not ended."""
-        text = self._file.attrs.get("summary")
-        return None if text is None else json.loads(_text(text))
-
-    @property
-    def scene_json(self) -> str | None:
-        """The input scene JSON text (None if the run had none)."""
-        g = self._file["scene"]
-        return _text(g["json"][()]) if "json" in g else None
-
-    @property
-    def scene_sha256(self) -> str | None:
-        """SHA-256 (hex) of the input scene JSON text (None if the run had none)."""
-        value = self._file["scene"].attrs.get("sha256")
-        return None if value is None else _text(value)
-
-    @property
-    def contacts_recorded(self) -> bool:
-        """Whether `/contacts` holds contact rows (`record_contacts` of the writer)."""
-        return bool(self._file["contacts"].attrs["recorded"])
-
-    @property
-    def times(self) -> np.ndarray:
-        """Time `(K,)` s of each recorded step."""
-        return self._read("steps/time")
-
-    @property
-    def steps(self) -> np.ndarray:
-        """Solver step number `(K,)` of each recorded step."""
-        return self._read("steps/step")
-
-    def step_data(self) -> dict[str, np.ndarray]:
-        """Per-step scalars `(K,)`: step, time, dt, open_close_iterations, max_penetration."""
-        return {k: self._read(f"steps/{k}") for k in
-                ("step", "time", "dt", "open_close_iterations", "max_penetration")}
-
-    def energies(self) -> dict[str, np.ndarray]:
-        """Energy and work terms `(K,)` J by name (NaN where the engine gave none)."""
-        return {k: self._read(f"steps/energies/{k}") for k in self._file["steps/energies"]}
-
-    def bolts(self) -> dict[str, Any] | None:
-        """The rock bolts (None for a model without): `names`, `block`, `anchor_block`,
-        `head`, `anchor`, `pretension`, `capacity`, and per step `axial_force`,
-        `shear_force`, `status` `(K, b)` (see the module's layout)."""
-        if "bolts" not in self._file:
-            return None
-        g = self._file["bolts"]
-        out: dict[str, Any] = {"names": [_text(x) for x in g["names"][()]]}
-        for name in ("block", "anchor_block", "head", "anchor", "pretension", "capacity"):
-            out[name] = g[name][()]
-        for name in _BOLT_FIELDS:
-            out[name] = self._read(f"bolts/{name}")
-        return out
-
-    def water_resultants(self) -> np.ndarray | None:
-        """Resultant water force on each block `(K, n, 3)` N (None for a dry model)."""
-        return self._read("water/resultant") if "water" in self._file else None
-
-    # --- blocks
-    def block_index(self, name_or_index: str | int) -> int:
-        """Index of a block given by name (first match) or index (negative allowed)."""
-        if isinstance(name_or_index, str):
-            try:
-                return self.block_names.index(name_or_index)
-            except ValueError:
-                raise KeyError(f"no block named {name_or_index!r}") from None
-        i = int(name_or_index)
-        if not -self.n_blocks <= i < self.n_blocks:
-            raise IndexError(f"block index {i} out of range for {self.n_blocks} blocks")
-        return i % self.n_blocks
-
-    def block_history(self, name_or_index: str | int) -> dict[str, np.ndarray]:
-        """One block over time: time `(K,)`, centroid, displacement, rotation `(K,3)`,
-        velocity `(K,12)`, stress `(K,6)`, affine `(K,3,3)`."""
-        i = self.block_index(name_or_index)
-        h = self._file["history"]
-        out = {"step": self.steps, "time": self.times}
-        for name in _HISTORY_SHAPES:
-            out[name] = h[name][: self.n_steps, i]
-        out["displacement"] = out["centroid"] - self.initial_centroids[i]
-        return out
-
-    def resolve_step(self, step_index: int) -> int:
-        """Step index in `0..n_steps-1` (negative counts from the end); IndexError outside."""
-        k = int(step_index)
-        if not -self.n_steps <= k < self.n_steps:
-            raise IndexError(f"step index {k} out of range for {self.n_steps} steps")
-        return k % self.n_steps
-
-    def centroids(self, step_index: int) -> np.ndarray:
-        """Centroids `(n, 3)` of all blocks at a step."""
-        return self._file["history/centroid"][self.resolve_step(step_index)]
-
-    def surface(self) -> dict[str, np.ndarray]:
-        """Initial surface mesh of all blocks as flat arrays (as in `/blocks`): `vertices
-        (V,3)`, `vertex_offsets (n+1,)`, `face_offsets (F+1,)`, `face_connectivity` (global
-        vertex ids), `face_block_offsets (n+1,)`."""
-        return {"vertices": self._x0, "vertex_offsets": self._voff,
-                "face_offsets": self._foff, "face_connectivity": self._fconn,
-                "face_block_offsets": self._fboff}
-
-    def history(self, name: str, steps: slice = slice(None)) -> np.ndarray:
-        """`/history/<name>` (centroid, rotation, affine, velocity, stress) of all blocks at
-        the complete steps `steps` (a slice of `0..n_steps`), `(k, n, ...)`."""
-        if name not in _HISTORY_SHAPES:
-            raise KeyError(f"no history {name!r} (known: {', '.join(_HISTORY_SHAPES)})")
-        a, b, stride = steps.indices(self.n_steps)
-        if b <= a:
-            return np.zeros((0, self.n_blocks, *_HISTORY_SHAPES[name]))
-        return self._file[f"history/{name}"][a:b:stride]
-
-    def initial_vertices(self) -> list[np.ndarray]:
-        """Initial surface vertices `(k_b, 3)` of each block."""
-        return np.split(self._x0, self._voff[1:-1])
-
-    def faces(self, block: str | int) -> list[np.ndarray]:
-        """Faces of a block as arrays of indices into that block's vertex list."""
-        b = self.block_index(block)
-        f0, f1 = self._fboff[b], self._fboff[b + 1]
-        conn = self._fconn[self._foff[f0]: self._foff[f1]] - self._voff[b]
-        return np.split(conn, self._foff[f0 + 1: f1] - self._foff[f0])
-
-    def all_vertices(self, step_index: int) -> np.ndarray:
-        """Surface vertices of all blocks `(V, 3)` at a step, in `/blocks/vertices` order."""
-        k = self.resolve_step(step_index)
-        h = self._file["history"]
-        vb = self._vblock
-        return transform_points(self._x0 - self.initial_centroids[vb], vb,
-                                h["centroid"][k], h["affine"][k])
-
-    def vertices(self, step_index: int) -> list[np.ndarray]:
-        """Surface vertices `(k_b, 3)` of each block at a step, `centroid + A (X0 - c0)`."""
-        return np.split(self.all_vertices(step_index), self._voff[1:-1])
-
-    def contacts(self, step_index: int) -> dict[str, np.ndarray]:
-        """Contacts of one step as arrays (`block_i (c,)`, `point_i (c,3)`, ... `shear_force`)."""
-        if not self.contacts_recorded:
-            raise ValueError("contacts were not recorded for this run (record_contacts=False)")
-        k = self.resolve_step(step_index)
-        g = self._file["contacts"]
-        a, b = g["step_offsets"][k: k + 2]
-        return {name: g[name][a:b] for name in _CONTACT_FIELDS}
-
-
-def open_result(path: str | os.PathLike[str]) -> Result:
-    """Open a result file read-only (also one still being written or left by a killed run)."""
-    return Result(path)
-
-
-def _growing_rows(name: str, n: int, nv: int, nc: int) -> int:
-    """Rows the first `n` steps occupy in the growing dataset `name` (absolute HDF5 path)."""
-    if name in ("/VTKHDF/Points", "/VTKHDF/PointData/displacement",
-                "/VTKHDF/PointData/velocity"):
-        return n * nv
-    if name == "/contacts/step_offsets":
-        return n + 1
-    if name.startswith("/contacts/"):
-        return nc
-    return n
-
-
-def recover_result(src: str | os.PathLike[str], dst: str | os.PathLike[str]) -> Path:
-    """Copy the complete steps of a killed run's file into a new, closed file at `dst`.
-
-    A killed SWMR writer leaves its file marked as open, which only SWMR readers (this
-    module) accept; ParaView and h5dump need the copy. The status stays "running".
-    """
-    dst = Path(dst)
-    if dst.exists():
-        raise FileExistsError(f"{dst} exists")
-    with open_result(src) as r, h5py.File(dst, "x", libver=LIBVER) as out:
-        fin = r._file
-        n = r.n_steps
-        nv = len(r._x0)
-        nc = int(fin["contacts/step_offsets"][n])
-
-        def copy(name: str, obj: h5py.Group | h5py.Dataset) -> None:
-            if isinstance(obj, h5py.Group):
-                g = out.require_group(name)
-                g.attrs.update(obj.attrs)
-                return
-            kw: dict[str, Any] = {"dtype": obj.dtype}
-            if obj.maxshape[:1] == (None,):
-                rows = _growing_rows(obj.name, n, nv, nc)
-                kw.update(shape=(rows, *obj.shape[1:]), maxshape=obj.maxshape,
-                          chunks=obj.chunks, compression=obj.compression,
-                          compression_opts=obj.compression_opts, shuffle=obj.shuffle)
-                ds = out.create_dataset(name, **kw)
-                slab = max(1, (16 << 20) // max(1, obj.dtype.itemsize * int(
-                    np.prod(obj.shape[1:], dtype=np.int64))))
-                for a in range(0, rows, slab):
-                    ds[a: min(rows, a + slab)] = obj[a: min(rows, a + slab)]
-            else:
-                ds = out.create_dataset(name, data=obj[()], **kw)
-            ds.attrs.update(obj.attrs)
-
-        out.attrs.update(fin.attrs)
-        fin.visititems(copy)
-        out["VTKHDF/Steps"].attrs["NSteps"] = np.int64(n)
-        out.attrs["recovered_from"] = str(Path(src).resolve())
-        out.attrs["message"] = f"recovered {n} complete steps of a run that did not end"
-    return dst
