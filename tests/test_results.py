@@ -466,8 +466,8 @@ def test_large_steps_compressed_by_the_writer_read_back_exactly(tmp_path: Path,
     w.begin(model)
     for fr in frames:
         w.record(fr)
-    assert {"history/centroid", "VTKHDF/Points"} <= set(w._direct)  # written as chunks
-    assert (w._pool is not None) == background
+    assert {"history/centroid", "VTKHDF/Points"} <= set(w._batcher._direct)  # as chunks
+    assert (w._batcher._pool is not None) == background
     w.end("completed")
     with h5py.File(path, "r") as f:
         for name in ("history/centroid", "history/affine", "VTKHDF/Points"):
