@@ -35,7 +35,8 @@ from scipy.spatial.transform import Rotation
 from engine.contact.constraints import ContactSet
 from engine.geometry.polyhedron import Polyhedron
 from engine.model import Block, Model
-from engine.results.writer import ResultWriter, open_result
+from engine.results.reader import open_result
+from engine.results.writer import ResultWriter
 from engine.step.frame import Frame
 from engine.step.simulation import run as run_model
 

@@ -32,7 +32,7 @@ if TYPE_CHECKING:
         StrengthReductionControls,
     )
     from engine.geometry.polyhedron import Polyhedron
-    from engine.results.writer import Result
+    from engine.results.reader import Result
     from schemas.convert import BuildResult
 
 #: default contact search distance for the contacts of a scene, as a fraction of its size

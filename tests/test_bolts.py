@@ -14,7 +14,8 @@ import pytest
 
 from engine.loads.bolts import BROKEN, ELASTIC, YIELDED
 from engine.results.plots import plot_all
-from engine.results.writer import ResultWriter, open_result
+from engine.results.reader import open_result
+from engine.results.writer import ResultWriter
 from engine.step.simulation import STATUS_COMPLETED, run
 from schemas.convert import build_model, pattern_bolts
 from schemas.errors import Problems, SceneError

@@ -220,7 +220,7 @@ def test_run_writes_result_summary_and_vtkhdf(capsys: pytest.CaptureFixture[str]
     assert np.linalg.norm(wedge["displacement"]) == pytest.approx(0.5 * 4.718485 * 0.01,
                                                                   rel=0.02)
 
-    from engine.results.writer import open_result
+    from engine.results.reader import open_result
 
     with open_result(out) as res:
         assert res.status == "completed"

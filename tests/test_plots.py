@@ -21,8 +21,9 @@ from engine.results.plots import (  # noqa: E402
     plot_snapshot,
     trend_plunge,
 )
+from engine.results.reader import open_result  # noqa: E402
 from engine.results.summary import format_summary, summarize  # noqa: E402
-from engine.results.writer import ResultWriter, open_result  # noqa: E402
+from engine.results.writer import ResultWriter  # noqa: E402
 
 sys.path.insert(0, str(Path(__file__).parent))
 from test_results import make_frame, two_block_model, write_run  # noqa: E402

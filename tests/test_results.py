@@ -21,7 +21,9 @@ from scipy.spatial.transform import Rotation
 from engine.contact.constraints import ContactSet
 from engine.geometry.polyhedron import Polyhedron
 from engine.model import Block, Model
-from engine.results.writer import ResultWriter, open_result, point_velocities, recover_result
+from engine.results.layout import point_velocities
+from engine.results.reader import open_result, recover_result
+from engine.results.writer import ResultWriter
 from engine.step.frame import Frame
 
 CUBE_FACES = [[0, 3, 2, 1], [4, 5, 6, 7], [0, 1, 5, 4], [1, 2, 6, 5], [2, 3, 7, 6], [3, 0, 4, 7]]
@@ -464,8 +466,8 @@ def test_large_steps_compressed_by_the_writer_read_back_exactly(tmp_path: Path,
     w.begin(model)
     for fr in frames:
         w.record(fr)
-    assert {"history/centroid", "VTKHDF/Points"} <= set(w._direct)  # written as chunks
-    assert (w._pool is not None) == background
+    assert {"history/centroid", "VTKHDF/Points"} <= set(w._batcher._direct)  # as chunks
+    assert (w._batcher._pool is not None) == background
     w.end("completed")
     with h5py.File(path, "r") as f:
         for name in ("history/centroid", "history/affine", "VTKHDF/Points"):

@@ -18,7 +18,8 @@ import pytest
 
 from engine.dynamics.motion import current_vertices
 from engine.results.plots import energy_residual
-from engine.results.writer import ResultWriter, open_result, recover_result
+from engine.results.reader import open_result, recover_result
+from engine.results.writer import ResultWriter
 from engine.step.frame import energy_created
 from engine.step.simulation import STATUS_COMPLETED, Simulation, run
 from schemas.convert import build_model

@@ -17,7 +17,7 @@ from typing import Any, NamedTuple
 import httpx
 import pytest
 
-from engine.results.writer import open_result
+from engine.results.reader import open_result
 from service.settings import Settings
 from tests import service_helpers as helpers
 from tests.service_helpers import (

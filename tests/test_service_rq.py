@@ -12,7 +12,7 @@ from pathlib import Path
 import httpx
 import pytest
 
-from engine.results.writer import open_result
+from engine.results.reader import open_result
 from tests.service_helpers import (
     RedisServer,
     Server,

@@ -14,7 +14,7 @@ import httpx
 import numpy as np
 import pytest
 
-from engine.results.writer import open_result
+from engine.results.reader import open_result
 from service.cli import client as svc_client
 from service.jobs.worker import build_parser as worker_parser
 from service.settings import Settings
@@ -91,7 +91,7 @@ def test_wedge_over_http_with_events_and_download(tmp_path: Path) -> None:
 def _final_state(r: object) -> dict[str, np.ndarray]:
     """Recorded steps and times, and the blocks at the last step: centroids, rotations,
     vertices (and the initial centroids)."""
-    from engine.results.writer import Result
+    from engine.results.reader import Result
 
     assert isinstance(r, Result)
     return {"steps": r.steps, "times": r.times, "centroids": r.centroids(-1),

@@ -19,7 +19,7 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from engine.results.plots import plot_snapshot
-from engine.results.writer import open_result
+from engine.results.reader import open_result
 from service.api.frames import decode_binary
 from service.api.pages import trend_plunge
 from service.settings import Settings

@@ -121,7 +121,7 @@ def test_contacts_toggle_shows_the_steps_contacts_and_forces(served: Any) -> Non
     hides them."""
     import numpy as np
 
-    from engine.results.writer import open_result
+    from engine.results.reader import open_result
 
     server, job, _, _ = served
     with open_result(server.data_dir / "jobs" / job / "result.h5") as r:
@@ -253,7 +253,7 @@ def test_wedge_base_faces_are_triangulated_without_overlap(served: Any) -> None:
     face exactly once (a fan would also cover the notch the wedge leaves)."""
     import numpy as np
 
-    from engine.results.writer import open_result
+    from engine.results.reader import open_result
     from service.api.frames import decode_binary
 
     server, job, _, _ = served

@@ -17,7 +17,7 @@ from matplotlib.colors import Normalize
 from matplotlib.figure import Figure
 from mpl_toolkits.mplot3d.art3d import Poly3DCollection
 
-from engine.results.writer import Result, open_result
+from engine.results.reader import Result, open_result
 from engine.step.frame import energy_created
 
 PathLike = str | os.PathLike[str]

@@ -7,7 +7,7 @@ from typing import Any
 
 import numpy as np
 
-from engine.results.writer import Result, open_result
+from engine.results.reader import Result, open_result
 
 
 def summarize(result: Result | str | os.PathLike[str]) -> dict[str, Any]:

@@ -1,38 +1,14 @@
-"""Run results as one HDF5 file: an incremental writer (a Recorder) and a reader.
+"""Writing a result file: :class:`ResultWriter`, the engine's Recorder, and the file's
+publication under its name.
 
-The writer appends the recorded steps to resizable, chunked, gzip+shuffle datasets in
-HDF5 single-writer/multiple-reader (SWMR) mode, in batches, each followed by a flush (at
-the first step, then at least every `flush_seconds` of wall time, default 1 s, or every
-`flush_every` steps), so a run that is killed keeps every flushed step and its status
-stays "running". The file appears at its path (by a rename) only once its static part is
-written; an existing file is replaced, never rewritten in place. Layout (K steps,
-n blocks, V surface vertices, F faces, C contacts in all):
-
-- root attrs: `format` "polydda-result", `format_version`, `engine_version`,
-  `schema_version` (when known), `status`, `message`, `summary` (JSON text, set by end)
-- `/scene`: `json` (scalar text) with attr `sha256` (hex digest of the UTF-8 text)
-- `/blocks`: `vertices (V,3)` initial surface vertices of all blocks, `vertex_offsets (n+1,)`,
-  `face_offsets (F+1,)`, `face_connectivity` global indices into `/blocks/vertices`,
-  `face_block_offsets (n+1,)` (block b owns faces `face_block_offsets[b]:[b+1]`),
-  `face_tags (F,)`, `names (n,)`, `material (n,)`, `fixed (n,)`, `centroid (n,3)`,
-  `volume (n,)`
-- `/steps`: `step`, `time`, `dt`, `open_close_iterations`, `max_penetration` `(K,)` and
-  `energies/<name> (K,)` J
-- `/history`: `centroid (K,n,3)`, `rotation (K,n,3)`, `affine (K,n,3,3)`,
-  `velocity (K,n,12)`, `stress (K,n,6)`; vertices are `centroid + affine @ (X0 - c0)`
-- `/contacts` (attr `recorded`): `step_offsets (K+1,)`, step k is rows
-  `step_offsets[k]:step_offsets[k+1]` of `block_i`, `block_j`, `kind`, `mode`,
-  `point_i (C,3)`, `point_j`, `normal`, `tangent`, `gap (C,)`, `normal_force (C,)`,
-  `shear_force (C,3)`
-- `/bolts` (only for a model with rock bolts, b of them): `names (b,)`, `block (b,)`,
-  `anchor_block (b,)` (-1: the ground), `head (b,3)`, `anchor (b,3)` m, `pretension (b,)`,
-  `capacity (b,)` N; per step `axial_force (K,b)` N (tension positive), `shear_force (K,b)` N,
-  `status (K,b)` (0 elastic, 1 yielded, 2 broken)
-- `/water` (only for a model with water in its joints): per step `resultant (K,n,3)` N, the
-  resultant water force on each block
-- `/VTKHDF`: VTKHDF 2.2 temporal PolyData for ParaView (block faces as polygons, points
-  written per step, connectivity shared by all steps; point data `block_id`,
-  `displacement`, `velocity`; cell data `block_id`, `face_tag`)
+The writer creates the file's layout (:mod:`engine.results.layout`: root attributes, scene,
+initial geometry, empty per-step datasets), turns each recorded frame into the values of
+those datasets, and hands the steps to its :class:`~engine.results.batching.Batcher`, which
+writes and flushes them in batches (HDF5 SWMR mode) so that a run that is killed keeps
+every flushed step and its status stays "running"; :meth:`ResultWriter.end` writes the
+status, message and summary. The file appears at its path (by a rename) only once its
+static part is written; an existing file is replaced, never rewritten in place. The reader
+is :mod:`engine.results.reader`.
 """
 
 from __future__ import annotations
@@ -42,12 +18,6 @@ import json
 import logging
 import os
 import secrets
-import time
-import zlib
-from collections import deque
-from collections.abc import Iterator
-from concurrent.futures import Future, ThreadPoolExecutor
-from dataclasses import dataclass
 from pathlib import Path
 from types import TracebackType
 from typing import Any
@@ -55,189 +25,30 @@ from typing import Any
 import h5py
 import numpy as np
 
-from engine.geometry._transform_kernels import block_vertices, point_motions
 from engine.model import Model
+from engine.results.batching import Batcher, PendingStep, append_rows
+from engine.results.layout import (
+    BOLT_FIELDS,
+    CONTACT_FIELDS,
+    FORMAT,
+    FORMAT_VERSION,
+    HISTORY_SHAPES,
+    LIBVER,
+    STATUSES,
+    VTKHDF_VERSION,
+    Static,
+    engine_version,
+    flatten_model,
+    json_default,
+    point_velocities,
+    transform_points,
+)
 from engine.step.frame import ENERGY_NAMES, Frame
 
 log = logging.getLogger(__name__)
 
-FORMAT = "polydda-result"
-FORMAT_VERSION = 1
-VTKHDF_VERSION = (2, 2)
-STATUSES = ("completed", "failed", "cancelled", "stopped")
-#: HDF5 file-format bounds: 1.10 is the oldest that has SWMR; ParaView >= 5.x reads it
-LIBVER = ("v110", "v110")
-#: Chunking policy. HDF5 in SWMR mode does not reuse freed file space, so a compressed chunk
-#: that is rewritten (it grew) leaks its old copy. Steps of at least _COMPRESS_MIN bytes get
-#: their own compressed chunks, written once; smaller ones share uncompressed chunks of about
-#: _SHARED_CHUNK bytes, rewritten in place.
-_COMPRESS_MIN = 4096
-_SHARED_CHUNK = 8 * 1024
-_CHUNK_MAX = 8 * 1024 * 1024
-#: pending steps are written and flushed once they hold about this many bytes
-_FLUSH_BYTES = 32 * 1024 * 1024
-#: batches of large steps that may wait for the writer's thread (which derives the VTKHDF
-#: points and compresses while the run goes on) before `record` waits too
-_MAX_INFLIGHT = 2
-#: contacts (a variable count per step) are compressed in models of at least this many
-#: blocks, in chunks of `n_blocks` rows (a rewritten partial chunk leaks < 1 chunk per step)
-_CONTACT_COMPRESS_BLOCKS = 100
+#: names and the scene JSON are UTF-8 strings in the file
 _STR = h5py.string_dtype("utf-8")
-_HISTORY_SHAPES = {"centroid": (3,), "rotation": (3,), "affine": (3, 3),
-                   "velocity": (12,), "stress": (6,)}
-#: per-step bolt datasets under /bolts: frame attribute and dtype
-_BOLT_FIELDS: dict[str, tuple[str, type]] = {
-    "axial_force": ("bolt_axial_force", np.float64),
-    "shear_force": ("bolt_shear_force", np.float64),
-    "status": ("bolt_status", np.int8),
-}
-_CONTACT_FIELDS: dict[str, tuple[tuple[int, ...], type]] = {
-    "block_i": ((), np.int32), "block_j": ((), np.int32), "kind": ((), np.int8),
-    "mode": ((), np.int8), "point_i": ((3,), np.float64), "point_j": ((3,), np.float64),
-    "normal": ((3,), np.float64), "tangent": ((3,), np.float64), "gap": ((), np.float64),
-    "normal_force": ((), np.float64), "shear_force": ((3,), np.float64),
-}
-
-
-def _engine_version() -> str:
-    try:
-        from importlib.metadata import version
-
-        return version("polydda")
-    except Exception:  # not installed (source checkout)
-        return "unknown"
-
-
-def _json_default(obj: Any) -> Any:
-    """JSON encoding of numpy scalars and arrays (summaries carry them)."""
-    if isinstance(obj, np.generic):
-        return obj.item()
-    if isinstance(obj, np.ndarray):
-        return obj.tolist()
-    if isinstance(obj, Path):
-        return str(obj)
-    raise TypeError(f"{type(obj).__name__} is not JSON serializable")
-
-
-# --------------------------------------------------------------------------- writer
-
-
-@dataclass
-class _Static:
-    """Initial geometry of all blocks, flattened (what the writer and plots need)."""
-
-    vertices: np.ndarray  # (V, 3)
-    vertex_offsets: np.ndarray  # (n+1,)
-    vertex_block: np.ndarray  # (V,) block of each vertex
-    face_offsets: np.ndarray  # (F+1,)
-    face_connectivity: np.ndarray  # global vertex ids
-    face_block_offsets: np.ndarray  # (n+1,)
-    face_tags: np.ndarray  # (F,)
-    centroid: np.ndarray  # (n, 3) initial centroids
-
-
-def _flatten_model(model: Model) -> _Static:
-    """Surface vertices and faces of all blocks renumbered into global arrays."""
-    verts, vcount, fptr, fconn, fcount, tags, cents = [], [], [], [], [], [], []
-    base = 0
-    for block in model.blocks:
-        poly = block.polyhedron
-        used = poly.surface_vertex_ids
-        remap = np.full(len(poly.vertices), -1, dtype=np.int64)
-        remap[used] = np.arange(len(used)) + base
-        verts.append(poly.vertices[used])
-        vcount.append(len(used))
-        fptr.append(np.diff(poly.face_indptr))
-        fconn.append(remap[poly.face_indices])
-        fcount.append(poly.n_faces)
-        tags.append(np.asarray(poly.face_tags, dtype=np.int64))
-        cents.append(poly.centroid)
-        base += len(used)
-    n = len(model.blocks)
-
-    def offsets(counts: list[int] | np.ndarray) -> np.ndarray:
-        out = np.zeros(len(counts) + 1, dtype=np.int64)
-        np.cumsum(counts, out=out[1:])
-        return out
-
-    face_sizes = np.concatenate(fptr) if fptr else np.zeros(0, np.int64)
-    vo = offsets(vcount)
-    return _Static(
-        vertices=np.concatenate(verts) if verts else np.zeros((0, 3)),
-        vertex_offsets=vo,
-        vertex_block=np.repeat(np.arange(n), np.diff(vo)),
-        face_offsets=offsets(face_sizes),
-        face_connectivity=np.concatenate(fconn) if fconn else np.zeros(0, np.int64),
-        face_block_offsets=offsets(fcount),
-        face_tags=np.concatenate(tags) if tags else np.zeros(0, np.int64),
-        centroid=np.array(cents, dtype=float).reshape(n, 3),
-    )
-
-
-def point_velocities(
-    points: np.ndarray, centroids: np.ndarray, velocity: np.ndarray
-) -> np.ndarray:
-    """Velocity `(p, 3)` of points `(p, 3)` from their block's `centroids (p, 3)` and rates
-    `velocity (p, 12)`: T(x) v (:func:`engine.geometry._transform_kernels.point_motion`)."""
-    return point_motions(np.ascontiguousarray(points, dtype=float),
-                         np.ascontiguousarray(centroids, dtype=float),
-                         np.ascontiguousarray(velocity, dtype=float))
-
-
-def transform_points(rel0: np.ndarray, vertex_block: np.ndarray, centroids: np.ndarray,
-                     affine: np.ndarray) -> np.ndarray:
-    """Moved points `c + A (X0 − c0)` `(..., p, 3)` of points `rel0 = X0 − c0 (p, 3)` of
-    blocks `vertex_block (p,)`, for block `centroids (..., n, 3)` and `affine (..., n, 3,
-    3)`; leading axes (steps) broadcast
-    (:func:`engine.geometry._transform_kernels.block_vertices`)."""
-    lead = centroids.shape[:-2]
-    cent = np.ascontiguousarray(centroids, dtype=float).reshape(-1, *centroids.shape[-2:])
-    aff = np.ascontiguousarray(affine, dtype=float).reshape(-1, *affine.shape[-3:])
-    rel = np.ascontiguousarray(rel0, dtype=float)
-    vb = np.ascontiguousarray(vertex_block, dtype=np.int64)
-    out = np.stack([block_vertices(c, a, vb, rel) for c, a in zip(cent, aff, strict=True)])
-    return out.reshape(*lead, len(rel), 3)
-
-
-@dataclass
-class _PendingStep:
-    """One recorded step held in memory until the next flush."""
-
-    arrays: dict[str, np.ndarray]  # history arrays by name, (n, *tail) each
-    contacts: dict[str, np.ndarray]  # contact fields (empty: no contacts this step)
-    contact_end: int  # contact rows of all steps up to this one
-    scalars: tuple[Any, ...]  # step, time, dt, open_close_iterations, max_penetration, energies
-
-
-@dataclass
-class _Batch:
-    """Steps prepared for writing: values per dataset path, in write order, and the
-    compressed whole-step chunks of the datasets written chunk by chunk."""
-
-    m: int
-    writes: list[tuple[str, np.ndarray]]
-    chunks: dict[str, list[bytes]]
-
-
-@dataclass
-class _Job:
-    """Pending steps handed over for writing (from step index `k0`), and the thread's
-    :class:`_Batch` being prepared from them (None: prepared when written)."""
-
-    pend: list[_PendingStep]
-    k0: int
-    future: Future[_Batch] | None = None
-
-    def ready(self) -> bool:
-        return self.future is None or self.future.done()
-
-
-def _deflate(values: np.ndarray, level: int) -> bytes:
-    """One chunk through HDF5's shuffle + deflate filters (what H5Z would store)."""
-    raw = np.ascontiguousarray(values)
-    size = raw.dtype.itemsize
-    shuffled = np.ascontiguousarray(raw.view(np.uint8).reshape(-1, size).T)
-    return zlib.compress(shuffled, level)
 
 
 def _inode(path: Path) -> tuple[int, int] | None:
@@ -271,17 +82,13 @@ def _publish(tmp: Path, path: Path, overwrite: bool) -> None:
 class ResultWriter:
     """Writes one run to one HDF5 file as it goes; implements the :class:`Recorder` protocol.
 
-    Recorded steps are buffered and written together, then flushed (durable, visible to
-    readers): the first step at once; then a batch is started whenever `flush_every`
-    records are pending, `flush_seconds` of wall time have passed since the last one
-    (checked at each record) or about `_FLUSH_BYTES` are pending, and everything at
-    :meth:`flush` and :meth:`end`. Whole-step chunks of large, compressed datasets are
-    compressed by a thread while the run goes on (`background`, the default; the engine
-    mostly uses one core); such a batch is written and flushed at the first `record` after
-    its compression is done. A killed run keeps every flushed step
-    (:attr:`n_flushed`); `flush_every=1` makes every step durable when `record` returns.
-    Writing per batch removes the per-step cost that does not scale with the data (~50
-    datasets grow per step).
+    Recorded steps go to a :class:`~engine.results.batching.Batcher`, which writes them in
+    batches, each flushed (durable, visible to readers): the first step at once; then every
+    `flush_every` records, `flush_seconds` of wall time (checked at each record) or about
+    32 MB, and everything at :meth:`flush` and :meth:`end`. Large steps are compressed by a thread
+    while the run goes on (`background`, the default). A killed run keeps every flushed
+    step (:attr:`n_flushed`); `flush_every=1` makes every step durable when `record`
+    returns.
 
     The file is created under a temporary name beside `path` (`.NAME.PID.HEX.tmp`, left
     only by a process killed inside `begin`) and renamed to `path` once its static part is
@@ -303,94 +110,30 @@ class ResultWriter:
         schema_version: str | None = None,
         background: bool = True,
     ) -> None:
-        if compression not in ("gzip", None):
-            raise ValueError(f"compression must be 'gzip' or None (ParaView reads both), "
-                             f"not {compression!r}")
-        if flush_every < 1:
-            raise ValueError("flush_every must be >= 1")
-        if flush_seconds is not None and not flush_seconds >= 0:
-            raise ValueError("flush_seconds must be >= 0 (or None: by count only)")
+        self._batcher = Batcher(self._step_values, self._steps_written,
+                                compression=compression, compression_level=compression_level,
+                                flush_every=flush_every, flush_seconds=flush_seconds,
+                                background=background)
         self.path = Path(path)
-        self.compression = compression
-        self.compression_level = int(compression_level)
         self.record_contacts = record_contacts
-        self.flush_every = int(flush_every)
-        self.flush_seconds = flush_seconds
         self.overwrite = overwrite
         self.schema_version = schema_version
-        self.background = background
-        #: steps given to `record`, and steps written and flushed to the file (durable)
+        #: steps given to `record`
         self.n_recorded = 0
-        self.n_flushed = 0
         self._file: h5py.File | None = None
         self._inode: tuple[int, int] | None = None
-        self._static: _Static | None = None
+        self._static: Static | None = None
         self._ended = False
         self._n_contacts = 0
         self._ignored_energies: set[str] = set()
-        self._h: dict[str, h5py.Dataset] | None = None
         self._nf = 0
-        self._n_blocks = 0
         self._n_bolts = 0
         self._water = False
-        self._pending: list[_PendingStep] = []
-        self._pending_bytes = 0
-        self._last_flush = 0.0
-        #: datasets whose chunks are whole steps, compressed off the main thread
-        self._direct: dict[str, np.dtype] = {}
-        self._pool: ThreadPoolExecutor | None = None
-        self._inflight: deque[_Job] = deque()
 
-    # --- helpers
-    def _ds(self, group: h5py.Group, name: str, tail: tuple[int, ...], dtype: Any,
-            rows_per_step: int = 1, contact: bool = False) -> h5py.Dataset:
-        """An empty dataset `(0, *tail)` growing along axis 0, chunked by the policy above."""
-        item = np.dtype(dtype).itemsize
-        row_bytes = int(np.prod(tail, dtype=np.int64)) * item
-        step_bytes = max(1, row_bytes * rows_per_step)
-        tail_chunk = tail
-        if contact:
-            compress = bool(self.compression) and self._n_blocks >= _CONTACT_COMPRESS_BLOCKS
-            rows = max(256, self._n_blocks) if compress else max(1, _SHARED_CHUNK // row_bytes)
-        else:
-            compress = bool(self.compression) and step_bytes >= _COMPRESS_MIN
-            if not compress:
-                rows = rows_per_step * max(1, _SHARED_CHUNK // step_bytes)
-            elif step_bytes <= _CHUNK_MAX:
-                rows = rows_per_step  # exactly one step per chunk, written once
-            elif rows_per_step > 1:  # a huge flat step: chunks straddle steps
-                rows = max(1, _CHUNK_MAX // row_bytes)
-            else:  # one huge (n, ...) row: one step, split along the block axis
-                rows = 1
-                tail_chunk = (max(1, _CHUNK_MAX // (row_bytes // tail[0])), *tail[1:])
-        kw: dict[str, Any] = {}
-        if compress:
-            kw = {"compression": "gzip", "compression_opts": self.compression_level,
-                  "shuffle": True}
-        ds = group.create_dataset(name, shape=(0, *tail), maxshape=(None, *tail),
-                                  dtype=dtype, chunks=(rows, *tail_chunk), **kw)
-        if compress and not contact and rows == rows_per_step and tail_chunk == tail:
-            self._direct[ds.name.lstrip("/")] = ds.dtype  # whole-step chunks: _deflate
-        return ds
-
-    @staticmethod
-    def _append(ds: h5py.Dataset, values: np.ndarray) -> None:
-        """Append rows `values (m, *tail)` (or one row `(*tail)`) to a growing dataset.
-
-        Uses the low-level API: h5py's high-level resize and slicing cost ~10x more.
-        """
-        dsid = ds.id
-        space = dsid.get_space()
-        shape = space.shape
-        values = np.ascontiguousarray(values, dtype=ds.dtype)
-        if values.ndim == len(shape) - 1:
-            values = values[None]
-        n, m = shape[0], len(values)
-        dsid.set_extent((n + m, *shape[1:]))
-        if m:
-            fspace = dsid.get_space()
-            fspace.select_hyperslab((n,) + (0,) * (len(shape) - 1), values.shape)
-            dsid.write(h5py.h5s.create_simple(values.shape), fspace, values)
+    @property
+    def n_flushed(self) -> int:
+        """Steps written and flushed to the file (durable)."""
+        return self._batcher.n_flushed
 
     # --- Recorder protocol
     def begin(self, model: Model, scene_json: str | None = None) -> None:
@@ -416,13 +159,13 @@ class ResultWriter:
             tmp.unlink(missing_ok=True)
             raise
         self._inode = _inode(self.path)
-        self._last_flush = time.monotonic()
+        self._batcher.open(f)
 
     def _write_static(self, f: h5py.File, model: Model, scene_json: str | None) -> None:
         """Root attributes, scene, initial geometry and empty per-step datasets; SWMR on."""
-        st = self._static = _flatten_model(model)
+        st = self._static = flatten_model(model)
         n, nv = len(model.blocks), len(st.vertices)
-        self._n_blocks = n
+        growing = self._batcher.dataset
 
         schema = self.schema_version
         if schema is None and scene_json:
@@ -434,7 +177,7 @@ class ResultWriter:
                 pass
         f.attrs["format"] = FORMAT
         f.attrs["format_version"] = FORMAT_VERSION
-        f.attrs["engine_version"] = _engine_version()
+        f.attrs["engine_version"] = engine_version()
         if schema is not None:
             f.attrs["schema_version"] = schema
         f.attrs["status"] = "running"
@@ -460,26 +203,26 @@ class ResultWriter:
         g["volume"] = np.array([b.polyhedron.volume for b in model.blocks], dtype=float)
 
         g = f.create_group("steps")
-        self._ds(g, "step", (), np.int64)
-        self._ds(g, "time", (), np.float64)
-        self._ds(g, "dt", (), np.float64)
-        self._ds(g, "open_close_iterations", (), np.int64)
-        self._ds(g, "max_penetration", (), np.float64)
+        growing(g, "step", (), np.int64)
+        growing(g, "time", (), np.float64)
+        growing(g, "dt", (), np.float64)
+        growing(g, "open_close_iterations", (), np.int64)
+        growing(g, "max_penetration", (), np.float64)
         e = g.create_group("energies")
         for name in ENERGY_NAMES:
-            self._ds(e, name, (), np.float64)
+            growing(e, name, (), np.float64)
 
         g = f.create_group("history")
-        for name, tail in _HISTORY_SHAPES.items():
-            self._ds(g, name, (n, *tail), np.float64)
+        for name, tail in HISTORY_SHAPES.items():
+            growing(g, name, (n, *tail), np.float64)
 
         g = f.create_group("contacts")
         g.attrs["recorded"] = bool(self.record_contacts)
-        so = self._ds(g, "step_offsets", (), np.int64)
-        self._append(so, np.zeros(1, np.int64))
+        so = growing(g, "step_offsets", (), np.int64)
+        append_rows(so, np.zeros(1, np.int64))
         if self.record_contacts:
-            for name, (tail, dtype) in _CONTACT_FIELDS.items():
-                self._ds(g, name, tail, dtype, contact=True)
+            for name, (tail, dtype) in CONTACT_FIELDS.items():
+                growing(g, name, tail, dtype, contact_blocks=n)
 
         self._begin_loads(f, model)
         self._begin_vtkhdf(f, n, nv)
@@ -489,6 +232,7 @@ class ResultWriter:
     def _begin_loads(self, f: h5py.File, model: Model) -> None:
         """The `/bolts` and `/water` groups of a model that has bolts or water."""
         n = len(model.blocks)
+        growing = self._batcher.dataset
         if model.bolts:
             self._n_bolts = nb = len(model.bolts)
             g = f.create_group("bolts")
@@ -500,27 +244,28 @@ class ResultWriter:
             g["anchor"] = np.array([b.anchor for b in model.bolts], float).reshape(nb, 3)
             g["pretension"] = np.array([b.pretension for b in model.bolts], float)
             g["capacity"] = np.array([b.capacity for b in model.bolts], float)
-            for name, (_, dtype) in _BOLT_FIELDS.items():
-                self._ds(g, name, (nb,), dtype)
+            for name, (_, dtype) in BOLT_FIELDS.items():
+                growing(g, name, (nb,), dtype)
 
         if model.water is not None:
             self._water = True
-            self._ds(f.create_group("water"), "resultant", (n, 3), np.float64)
+            growing(f.create_group("water"), "resultant", (n, 3), np.float64)
 
     def _begin_vtkhdf(self, f: h5py.File, n: int, nv: int) -> None:
         """Static part of the VTKHDF temporal PolyData group and its per-step datasets."""
         st = self._static
         assert st is not None
+        growing = self._batcher.dataset
         v = f.create_group("VTKHDF")
         v.attrs["Version"] = np.array(VTKHDF_VERSION, dtype=np.int64)
         v.attrs.create("Type", np.bytes_("PolyData"), dtype=h5py.string_dtype("ascii", 8))
-        self._ds(v, "NumberOfPoints", (), np.int64)
-        self._ds(v, "Points", (3,), np.float64, rows_per_step=max(nv, 1))
+        growing(v, "NumberOfPoints", (), np.int64)
+        growing(v, "Points", (3,), np.float64, rows_per_step=max(nv, 1))
         nf = len(st.face_offsets) - 1
         for name in ("Vertices", "Lines", "Polygons", "Strips"):
             c = v.create_group(name)
-            self._ds(c, "NumberOfCells", (), np.int64)
-            self._ds(c, "NumberOfConnectivityIds", (), np.int64)
+            growing(c, "NumberOfCells", (), np.int64)
+            growing(c, "NumberOfConnectivityIds", (), np.int64)
             if name == "Polygons":
                 c["Offsets"] = st.face_offsets
                 c["Connectivity"] = st.face_connectivity
@@ -529,40 +274,30 @@ class ResultWriter:
                 c["Connectivity"] = np.zeros(0, np.int64)
         pd = v.create_group("PointData")
         pd["block_id"] = st.vertex_block.astype(np.int32)
-        self._ds(pd, "displacement", (3,), np.float64, rows_per_step=max(nv, 1))
-        self._ds(pd, "velocity", (3,), np.float64, rows_per_step=max(nv, 1))
+        growing(pd, "displacement", (3,), np.float64, rows_per_step=max(nv, 1))
+        growing(pd, "velocity", (3,), np.float64, rows_per_step=max(nv, 1))
         cd = v.create_group("CellData")
         cd["block_id"] = np.repeat(np.arange(n), np.diff(st.face_block_offsets)).astype(np.int32)
         cd["face_tag"] = st.face_tags
         s = v.create_group("Steps")
         s.attrs["NSteps"] = np.int64(0)
-        self._ds(s, "Values", (), np.float64)
-        self._ds(s, "PartOffsets", (), np.int64)
-        self._ds(s, "NumberOfParts", (), np.int64)
-        self._ds(s, "PointOffsets", (), np.int64)
-        self._ds(s, "CellOffsets", (4,), np.int64)
-        self._ds(s, "ConnectivityIdOffsets", (4,), np.int64)
+        growing(s, "Values", (), np.float64)
+        growing(s, "PartOffsets", (), np.int64)
+        growing(s, "NumberOfParts", (), np.int64)
+        growing(s, "PointOffsets", (), np.int64)
+        growing(s, "CellOffsets", (4,), np.int64)
+        growing(s, "ConnectivityIdOffsets", (4,), np.int64)
         po = s.create_group("PointDataOffsets")
         for name in ("block_id", "displacement", "velocity"):
-            self._ds(po, name, (), np.int64)
+            growing(po, name, (), np.int64)
         co = s.create_group("CellDataOffsets")
         for name in ("block_id", "face_tag"):
-            self._ds(co, name, (), np.int64)
+            growing(co, name, (), np.int64)
         self._nf = nf
 
-    def _handles(self) -> dict[str, h5py.Dataset]:
-        """Every growing dataset by its path (looked up once; lookups cost per step)."""
-        if self._h is None:
-            f = self._file
-            assert f is not None
-            out: dict[str, h5py.Dataset] = {}
-            f.visititems(lambda name, obj: out.__setitem__(name, obj) if isinstance(
-                obj, h5py.Dataset) and obj.maxshape[:1] == (None,) else None)
-            self._h = out
-        return self._h
-
     def record(self, frame: Frame) -> None:
-        """Take one step (copied); write and flush the pending steps as the policy says."""
+        """Take one step (copied) and hand it to the batcher (written and flushed as its
+        policy says)."""
         st = self._static
         if self._file is None or st is None or self._ended:
             raise RuntimeError("record() needs begin() first and no end() yet")
@@ -570,11 +305,11 @@ class ResultWriter:
         arrays = {name: np.array(getattr(frame, attr), dtype=float) for name, attr in
                   (("centroid", "centroids"), ("rotation", "rotation"), ("affine", "affine"),
                    ("velocity", "velocity"), ("stress", "stress"))}
-        for name, tail in _HISTORY_SHAPES.items():
+        for name, tail in HISTORY_SHAPES.items():
             if arrays[name].shape != (n, *tail):
                 raise ValueError(f"frame.{name} has shape {arrays[name].shape}, "
                                  f"expected {(n, *tail)}")
-        for name, (attr, dtype) in _BOLT_FIELDS.items() if self._n_bolts else ():
+        for name, (attr, dtype) in BOLT_FIELDS.items() if self._n_bolts else ():
             value = getattr(frame, attr)
             arrays[f"bolts/{name}"] = (np.full(self._n_bolts, np.nan) if value is None
                                        else np.array(value, dtype=dtype))
@@ -586,13 +321,13 @@ class ResultWriter:
         c = 0 if cs is None or not self.record_contacts else len(cs)
         if c:
             assert cs is not None
-            vals = {name: getattr(cs, name) for name in _CONTACT_FIELDS
+            vals = {name: getattr(cs, name) for name in CONTACT_FIELDS
                     if name not in ("normal_force", "shear_force")}
             vals["normal_force"] = (np.full(c, np.nan) if frame.normal_force is None
                                     else frame.normal_force)
             vals["shear_force"] = (np.full((c, 3), np.nan) if frame.shear_force is None
                                    else frame.shear_force)
-            for name, (tail, dtype) in _CONTACT_FIELDS.items():
+            for name, (tail, dtype) in CONTACT_FIELDS.items():
                 contacts[name] = np.array(vals[name], dtype=dtype).reshape(c, *tail)
         self._n_contacts += c
         extra = set(frame.energies) - set(ENERGY_NAMES) - self._ignored_energies
@@ -603,69 +338,43 @@ class ResultWriter:
         scalars = (frame.step, frame.time, frame.dt, frame.open_close_iterations,
                    frame.max_penetration,
                    tuple(frame.energies.get(name, np.nan) for name in ENERGY_NAMES))
-        self._pending.append(_PendingStep(arrays, contacts, self._n_contacts, scalars))
-        self._pending_bytes += (sum(a.nbytes for a in arrays.values())
-                                + sum(a.nbytes for a in contacts.values())
-                                + 72 * len(st.vertices))  # VTKHDF points written per step
+        nbytes = (sum(a.nbytes for a in arrays.values())
+                  + sum(a.nbytes for a in contacts.values())
+                  + 72 * len(st.vertices))  # VTKHDF points written per step
         self.n_recorded += 1
-        self._commit_ready(wait=False)
-        now = time.monotonic()
-        if self.flush_every == 1 or self.n_flushed + len(self._inflight) == 0:
-            self.flush()  # every step durable on return; the first step at once
-        elif (len(self._pending) >= self.flush_every or self._pending_bytes >= _FLUSH_BYTES
-              or (self.flush_seconds is not None
-                  and now - self._last_flush >= self.flush_seconds)):
-            self._launch()
-            self._commit_ready(wait=False)  # at once unless its chunks are compressing
+        self._batcher.add(PendingStep(arrays, contacts, self._n_contacts, scalars), nbytes)
 
     def flush(self) -> None:
         """Write every recorded step and flush: all of them durable when this returns."""
         if self._file is None or self._static is None:
             raise RuntimeError("flush() needs begin() first and no end() yet")
-        self._launch()
-        self._commit_ready(wait=True)
+        self._batcher.flush()
 
-    def _launch(self) -> None:
-        """Hand the pending steps over as one batch (large steps: prepared and compressed by
-        the writer's thread from now on); :meth:`_commit_ready` writes batches in order."""
-        self._last_flush = time.monotonic()
-        if not self._pending:
-            return
-        while len(self._inflight) >= _MAX_INFLIGHT:  # the thread is behind: wait
-            self._commit(self._inflight.popleft())
-        pend, self._pending, self._pending_bytes = self._pending, [], 0
-        job = _Job(pend, self.n_flushed + sum(len(j.pend) for j in self._inflight))
-        if self._direct and self.background:  # large steps: prepared by the thread
-            if self._pool is None:
-                self._pool = ThreadPoolExecutor(max_workers=1,
-                                                thread_name_prefix="polydda-result")
-            job.future = self._pool.submit(self._prepare, job.pend, job.k0)
-        self._inflight.append(job)
+    def _steps_written(self, n: int) -> None:
+        """The VTKHDF step count follows the steps the batcher has written (`n`)."""
+        f = self._file
+        assert f is not None
+        f["VTKHDF/Steps"].attrs.modify("NSteps", np.int64(n))
 
-    def _commit_ready(self, wait: bool) -> None:
-        """Write and flush the batches that are prepared (all of them if `wait`)."""
-        while self._inflight and (wait or self._inflight[0].ready()):
-            self._commit(self._inflight.popleft())
-
-    def _prepare(self, pend: list[_PendingStep], k0: int) -> _Batch:
+    def _step_values(self, pend: list[PendingStep], k0: int) -> list[tuple[str, np.ndarray]]:
         """The values of every growing dataset for steps `pend` (step indices from `k0`),
         in the order they are written (`steps/step` last: a reader counts the steps every
-        per-step dataset holds); whole-step chunks of compressed datasets compressed.
-        Runs in the writer's thread for large steps: numpy and zlib only, no HDF5."""
+        per-step dataset holds). Runs in the batcher's thread for large steps: numpy
+        only, no HDF5."""
         st = self._static
         assert st is not None
         m = len(pend)
         writes: list[tuple[str, np.ndarray]] = []
-        hist = {name: np.stack([p.arrays[name] for p in pend]) for name in _HISTORY_SHAPES}
+        hist = {name: np.stack([p.arrays[name] for p in pend]) for name in HISTORY_SHAPES}
         writes += [(f"history/{name}", a) for name, a in hist.items()]
         if self._n_bolts:
             writes += [(f"bolts/{name}", np.stack([p.arrays[f"bolts/{name}"] for p in pend]))
-                       for name in _BOLT_FIELDS]
+                       for name in BOLT_FIELDS]
         if self._water:
             writes.append(("water/resultant",
                            np.stack([p.arrays["water/resultant"] for p in pend])))
         if self.record_contacts:
-            for name in _CONTACT_FIELDS:
+            for name in CONTACT_FIELDS:
                 parts = [p.contacts[name] for p in pend if p.contacts]
                 if parts:
                     writes.append((f"contacts/{name}", np.concatenate(parts)))
@@ -711,38 +420,7 @@ class ResultWriter:
                    ("steps/open_close_iterations", np.array([x[3] for x in scal], np.int64)),
                    ("steps/max_penetration", np.array([x[4] for x in scal], float)),
                    ("steps/step", np.array([x[0] for x in scal], np.int64))]
-
-        chunks: dict[str, list[bytes]] = {}
-        for path, values in writes:
-            if path in self._direct and len(values):
-                steps = np.ascontiguousarray(values, dtype=self._direct[path]).reshape(m, -1)
-                chunks[path] = [_deflate(row, self.compression_level) for row in steps]
-        return _Batch(m, writes, chunks)
-
-    def _commit(self, job: _Job) -> None:
-        """Append one batch to the datasets (compressed chunks as they are) and flush."""
-        f = self._file
-        assert f is not None
-        if job.future is None or job.future.cancel():  # not started: prepared here
-            batch = self._prepare(job.pend, job.k0)
-        else:
-            batch = job.future.result()
-        h = self._handles()
-        for path, values in batch.writes:
-            ds = h[path]
-            if path not in batch.chunks:
-                self._append(ds, values)
-                continue
-            dsid = ds.id
-            shape = dsid.get_space().shape
-            rows = len(values) // batch.m  # rows of one step: one chunk
-            dsid.set_extent((shape[0] + len(values), *shape[1:]))
-            tail = (0,) * (len(shape) - 1)
-            for j, data in enumerate(batch.chunks[path]):
-                dsid.write_direct_chunk((shape[0] + j * rows, *tail), data)
-        self.n_flushed += batch.m
-        f["VTKHDF/Steps"].attrs.modify("NSteps", np.int64(self.n_flushed))
-        f.flush()
+        return writes
 
     def end(self, status: str, message: str = "", summary: dict[str, Any] | None = None) -> None:
         """Write the pending steps and close the SWMR session, then write status, message
@@ -751,14 +429,11 @@ class ResultWriter:
             raise ValueError(f"status must be one of {STATUSES}, not {status!r}")
         if self._file is None or self._ended:
             raise RuntimeError("end() needs begin() first and may be called once")
-        text = json.dumps(summary if summary is not None else {}, default=_json_default)
+        text = json.dumps(summary if summary is not None else {}, default=json_default)
         try:
             self.flush()
         finally:
-            self._inflight.clear()
-            if self._pool is not None:
-                self._pool.shutdown(wait=True, cancel_futures=True)
-                self._pool = None
+            self._batcher.close()
             self._file.close()
             self._file = None
             self._ended = True
@@ -784,325 +459,3 @@ class ResultWriter:
             else:
                 self.end("stopped", "the recorder was closed before the run ended")
 
-
-# --------------------------------------------------------------------------- reader
-
-
-def _text(value: Any) -> str:
-    return value.decode("utf-8") if isinstance(value, bytes) else str(value)
-
-
-class Result:
-    """Read-only view of a result file (finished, still being written, or from a killed run).
-
-    Steps count only when every per-step dataset holds them; call :meth:`refresh` to see
-    steps a live writer added since opening.
-    """
-
-    def __init__(self, path: str | os.PathLike[str]) -> None:
-        self.path = Path(path)
-        self._file = self._open(self.path)
-        f = self._file
-        if _text(f.attrs.get("format", "")) != FORMAT:
-            self._file.close()
-            raise ValueError(f"{self.path} is not a {FORMAT} file")
-        b = f["blocks"]
-        self.format_version = int(f.attrs["format_version"])
-        self.engine_version = _text(f.attrs.get("engine_version", "unknown"))
-        sv = f.attrs.get("schema_version")
-        self.schema_version = None if sv is None else _text(sv)
-        self.block_names: list[str] = [_text(x) for x in b["names"][()]]
-        self.n_blocks = len(self.block_names)
-        self.material = b["material"][()]
-        self.fixed = b["fixed"][()]
-        self.volume = b["volume"][()]
-        self.initial_centroids = b["centroid"][()]
-        self._x0 = b["vertices"][()]
-        self._voff = b["vertex_offsets"][()]
-        self._vblock = np.repeat(np.arange(self.n_blocks), np.diff(self._voff))
-        self._foff = b["face_offsets"][()]
-        self._fconn = b["face_connectivity"][()]
-        self._fboff = b["face_block_offsets"][()]
-        self.face_tags = b["face_tags"][()]
-        self.n_steps = 0
-        self._cache: dict[str, np.ndarray] = {}
-        self.refresh()
-
-    @staticmethod
-    def _open(path: Path) -> h5py.File:
-        """Open read-only: SWMR read first (live or killed writer), then without file locks."""
-        errors = []
-        for kw in ({"swmr": True}, {"swmr": True, "locking": False}, {"locking": False}):
-            try:
-                return h5py.File(path, "r", **kw)
-            except OSError as exc:
-                if not path.exists():
-                    raise
-                if str(exc) not in errors:
-                    errors.append(str(exc))
-        raise OSError(f"cannot open {path}: {'; '.join(errors)}")
-
-    # --- bookkeeping
-    def _per_step(self) -> Iterator[h5py.Dataset]:
-        f = self._file
-        yield from (f["steps"][k] for k in ("step", "time", "dt", "open_close_iterations",
-                                            "max_penetration"))
-        yield from f["steps/energies"].values()
-        yield from f["history"].values()
-        if "bolts" in f:
-            yield from (f["bolts"][name] for name in _BOLT_FIELDS)
-        if "water" in f:
-            yield f["water/resultant"]
-        yield f["VTKHDF/Steps/Values"]
-
-    def refresh(self) -> int:
-        """Re-read the number of complete steps (grows while a writer is running)."""
-        f = self._file
-        if f.swmr_mode:
-            for ds in self._per_step():
-                ds.refresh()
-            for ds in f["contacts"].values():
-                ds.refresh()
-            f["VTKHDF/Points"].refresh()
-        k = min(ds.shape[0] for ds in self._per_step())
-        so = f["contacts/step_offsets"]
-        k = min(k, so.shape[0] - 1)
-        if self.contacts_recorded and k > 0:
-            rows = min(ds.shape[0] for name, ds in f["contacts"].items()
-                       if name != "step_offsets")
-            k = int(np.searchsorted(so[: k + 1], rows, side="right")) - 1
-        self.n_steps = max(k, 0)
-        self._cache = {}
-        return self.n_steps
-
-    def _read(self, path: str) -> np.ndarray:
-        """Dataset `path` cut to the complete steps (cached until refresh)."""
-        if path not in self._cache:
-            self._cache[path] = self._file[path][: self.n_steps]
-        return self._cache[path]
-
-    def close(self) -> None:
-        """Close the file (also done by the context manager)."""
-        self._file.close()
-
-    def __enter__(self) -> Result:
-        return self
-
-    def __exit__(self, *exc: object) -> None:
-        self.close()
-
-    # --- run metadata
-    @property
-    def status(self) -> str:
-        """'running' (still going or killed), 'completed', 'failed', 'cancelled', 'stopped'."""
-        return _text(self._file.attrs["status"])
-
-    @property
-    def message(self) -> str:
-        """Why the run ended as it did (empty while running)."""
-        return _text(self._file.attrs.get("message", ""))
-
-    @property
-    def summary(self) -> dict[str, Any] | None:
-        """The run summary given to `end()`, or None while the run has not ended."""
-        text = self._file.attrs.get("summary")
-        return None if text is None else json.loads(_text(text))
-
-    @property
-    def scene_json(self) -> str | None:
-        """The input scene JSON text (None if the run had none)."""
-        g = self._file["scene"]
-        return _text(g["json"][()]) if "json" in g else None
-
-    @property
-    def scene_sha256(self) -> str | None:
-        """SHA-256 (hex) of the input scene JSON text (None if the run had none)."""
-        value = self._file["scene"].attrs.get("sha256")
-        return None if value is None else _text(value)
-
-    @property
-    def contacts_recorded(self) -> bool:
-        """Whether `/contacts` holds contact rows (`record_contacts` of the writer)."""
-        return bool(self._file["contacts"].attrs["recorded"])
-
-    @property
-    def times(self) -> np.ndarray:
-        """Time `(K,)` s of each recorded step."""
-        return self._read("steps/time")
-
-    @property
-    def steps(self) -> np.ndarray:
-        """Solver step number `(K,)` of each recorded step."""
-        return self._read("steps/step")
-
-    def step_data(self) -> dict[str, np.ndarray]:
-        """Per-step scalars `(K,)`: step, time, dt, open_close_iterations, max_penetration."""
-        return {k: self._read(f"steps/{k}") for k in
-                ("step", "time", "dt", "open_close_iterations", "max_penetration")}
-
-    def energies(self) -> dict[str, np.ndarray]:
-        """Energy and work terms `(K,)` J by name (NaN where the engine gave none)."""
-        return {k: self._read(f"steps/energies/{k}") for k in self._file["steps/energies"]}
-
-    def bolts(self) -> dict[str, Any] | None:
-        """The rock bolts (None for a model without): `names`, `block`, `anchor_block`,
-        `head`, `anchor`, `pretension`, `capacity`, and per step `axial_force`,
-        `shear_force`, `status` `(K, b)` (see the module's layout)."""
-        if "bolts" not in self._file:
-            return None
-        g = self._file["bolts"]
-        out: dict[str, Any] = {"names": [_text(x) for x in g["names"][()]]}
-        for name in ("block", "anchor_block", "head", "anchor", "pretension", "capacity"):
-            out[name] = g[name][()]
-        for name in _BOLT_FIELDS:
-            out[name] = self._read(f"bolts/{name}")
-        return out
-
-    def water_resultants(self) -> np.ndarray | None:
-        """Resultant water force on each block `(K, n, 3)` N (None for a dry model)."""
-        return self._read("water/resultant") if "water" in self._file else None
-
-    # --- blocks
-    def block_index(self, name_or_index: str | int) -> int:
-        """Index of a block given by name (first match) or index (negative allowed)."""
-        if isinstance(name_or_index, str):
-            try:
-                return self.block_names.index(name_or_index)
-            except ValueError:
-                raise KeyError(f"no block named {name_or_index!r}") from None
-        i = int(name_or_index)
-        if not -self.n_blocks <= i < self.n_blocks:
-            raise IndexError(f"block index {i} out of range for {self.n_blocks} blocks")
-        return i % self.n_blocks
-
-    def block_history(self, name_or_index: str | int) -> dict[str, np.ndarray]:
-        """One block over time: time `(K,)`, centroid, displacement, rotation `(K,3)`,
-        velocity `(K,12)`, stress `(K,6)`, affine `(K,3,3)`."""
-        i = self.block_index(name_or_index)
-        h = self._file["history"]
-        out = {"step": self.steps, "time": self.times}
-        for name in _HISTORY_SHAPES:
-            out[name] = h[name][: self.n_steps, i]
-        out["displacement"] = out["centroid"] - self.initial_centroids[i]
-        return out
-
-    def resolve_step(self, step_index: int) -> int:
-        """Step index in `0..n_steps-1` (negative counts from the end); IndexError outside."""
-        k = int(step_index)
-        if not -self.n_steps <= k < self.n_steps:
-            raise IndexError(f"step index {k} out of range for {self.n_steps} steps")
-        return k % self.n_steps
-
-    def centroids(self, step_index: int) -> np.ndarray:
-        """Centroids `(n, 3)` of all blocks at a step."""
-        return self._file["history/centroid"][self.resolve_step(step_index)]
-
-    def surface(self) -> dict[str, np.ndarray]:
-        """Initial surface mesh of all blocks as flat arrays (as in `/blocks`): `vertices
-        (V,3)`, `vertex_offsets (n+1,)`, `face_offsets (F+1,)`, `face_connectivity` (global
-        vertex ids), `face_block_offsets (n+1,)`."""
-        return {"vertices": self._x0, "vertex_offsets": self._voff,
-                "face_offsets": self._foff, "face_connectivity": self._fconn,
-                "face_block_offsets": self._fboff}
-
-    def history(self, name: str, steps: slice = slice(None)) -> np.ndarray:
-        """`/history/<name>` (centroid, rotation, affine, velocity, stress) of all blocks at
-        the complete steps `steps` (a slice of `0..n_steps`), `(k, n, ...)`."""
-        if name not in _HISTORY_SHAPES:
-            raise KeyError(f"no history {name!r} (known: {', '.join(_HISTORY_SHAPES)})")
-        a, b, stride = steps.indices(self.n_steps)
-        if b <= a:
-            return np.zeros((0, self.n_blocks, *_HISTORY_SHAPES[name]))
-        return self._file[f"history/{name}"][a:b:stride]
-
-    def initial_vertices(self) -> list[np.ndarray]:
-        """Initial surface vertices `(k_b, 3)` of each block."""
-        return np.split(self._x0, self._voff[1:-1])
-
-    def faces(self, block: str | int) -> list[np.ndarray]:
-        """Faces of a block as arrays of indices into that block's vertex list."""
-        b = self.block_index(block)
-        f0, f1 = self._fboff[b], self._fboff[b + 1]
-        conn = self._fconn[self._foff[f0]: self._foff[f1]] - self._voff[b]
-        return np.split(conn, self._foff[f0 + 1: f1] - self._foff[f0])
-
-    def all_vertices(self, step_index: int) -> np.ndarray:
-        """Surface vertices of all blocks `(V, 3)` at a step, in `/blocks/vertices` order."""
-        k = self.resolve_step(step_index)
-        h = self._file["history"]
-        vb = self._vblock
-        return transform_points(self._x0 - self.initial_centroids[vb], vb,
-                                h["centroid"][k], h["affine"][k])
-
-    def vertices(self, step_index: int) -> list[np.ndarray]:
-        """Surface vertices `(k_b, 3)` of each block at a step, `centroid + A (X0 - c0)`."""
-        return np.split(self.all_vertices(step_index), self._voff[1:-1])
-
-    def contacts(self, step_index: int) -> dict[str, np.ndarray]:
-        """Contacts of one step as arrays (`block_i (c,)`, `point_i (c,3)`, ... `shear_force`)."""
-        if not self.contacts_recorded:
-            raise ValueError("contacts were not recorded for this run (record_contacts=False)")
-        k = self.resolve_step(step_index)
-        g = self._file["contacts"]
-        a, b = g["step_offsets"][k: k + 2]
-        return {name: g[name][a:b] for name in _CONTACT_FIELDS}
-
-
-def open_result(path: str | os.PathLike[str]) -> Result:
-    """Open a result file read-only (also one still being written or left by a killed run)."""
-    return Result(path)
-
-
-def _growing_rows(name: str, n: int, nv: int, nc: int) -> int:
-    """Rows the first `n` steps occupy in the growing dataset `name` (absolute HDF5 path)."""
-    if name in ("/VTKHDF/Points", "/VTKHDF/PointData/displacement",
-                "/VTKHDF/PointData/velocity"):
-        return n * nv
-    if name == "/contacts/step_offsets":
-        return n + 1
-    if name.startswith("/contacts/"):
-        return nc
-    return n
-
-
-def recover_result(src: str | os.PathLike[str], dst: str | os.PathLike[str]) -> Path:
-    """Copy the complete steps of a killed run's file into a new, closed file at `dst`.
-
-    A killed SWMR writer leaves its file marked as open, which only SWMR readers (this
-    module) accept; ParaView and h5dump need the copy. The status stays "running".
-    """
-    dst = Path(dst)
-    if dst.exists():
-        raise FileExistsError(f"{dst} exists")
-    with open_result(src) as r, h5py.File(dst, "x", libver=LIBVER) as out:
-        fin = r._file
-        n = r.n_steps
-        nv = len(r._x0)
-        nc = int(fin["contacts/step_offsets"][n])
-
-        def copy(name: str, obj: h5py.Group | h5py.Dataset) -> None:
-            if isinstance(obj, h5py.Group):
-                g = out.require_group(name)
-                g.attrs.update(obj.attrs)
-                return
-            kw: dict[str, Any] = {"dtype": obj.dtype}
-            if obj.maxshape[:1] == (None,):
-                rows = _growing_rows(obj.name, n, nv, nc)
-                kw.update(shape=(rows, *obj.shape[1:]), maxshape=obj.maxshape,
-                          chunks=obj.chunks, compression=obj.compression,
-                          compression_opts=obj.compression_opts, shuffle=obj.shuffle)
-                ds = out.create_dataset(name, **kw)
-                slab = max(1, (16 << 20) // max(1, obj.dtype.itemsize * int(
-                    np.prod(obj.shape[1:], dtype=np.int64))))
-                for a in range(0, rows, slab):
-                    ds[a: min(rows, a + slab)] = obj[a: min(rows, a + slab)]
-            else:
-                ds = out.create_dataset(name, data=obj[()], **kw)
-            ds.attrs.update(obj.attrs)
-
-        out.attrs.update(fin.attrs)
-        fin.visititems(copy)
-        out["VTKHDF/Steps"].attrs["NSteps"] = np.int64(n)
-        out.attrs["recovered_from"] = str(Path(src).resolve())
-        out.attrs["message"] = f"recovered {n} complete steps of a run that did not end"
-    return dst

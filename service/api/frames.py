@@ -26,7 +26,7 @@ from typing import Any
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from engine.results.writer import Result
+from engine.results.reader import Result
 
 FORMAT = "polydda-frames"
 FORMAT_VERSION = 1

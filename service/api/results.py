@@ -70,7 +70,7 @@ def _opens_plainly(path: Path) -> bool:
 
 def readable_result(job: JobRecord, settings: Settings) -> tuple[Path, bool]:
     """The job's result.h5 as a file any HDF5 reader opens, and whether it is a recovered
-    copy (engine.results.writer.recover_result: the steps flushed before the run was killed)."""
+    copy (engine.results.reader.recover_result: the steps flushed before the run was killed)."""
     path = artifact(job, settings, RESULT_FILE)
     copy = path.with_name(RECOVERED_FILE)
     with _lock(job.id + "/h5"):
@@ -78,7 +78,7 @@ def readable_result(job: JobRecord, settings: Settings) -> tuple[Path, bool]:
             return copy, True
         if _opens_plainly(path):
             return path, False
-        from engine.results.writer import recover_result
+        from engine.results.reader import recover_result
 
         tmp = path.with_name(f".{RECOVERED_FILE}.{os.getpid()}.tmp")
         with contextlib.suppress(FileNotFoundError):
@@ -170,7 +170,7 @@ def plots(job: JobRecord, settings: Settings) -> list[Path]:
 def contacts(job: JobRecord, settings: Settings, step: int | None) -> dict[str, Any]:
     """service.documents.result_contacts_document of the job's result (404 / 422 when the
     file has no contacts or not that step)."""
-    from engine.results.writer import open_result
+    from engine.results.reader import open_result
 
     h5 = artifact(job, settings, RESULT_FILE)
     with open_result(h5) as r:
@@ -204,7 +204,7 @@ def live_result(job: JobRecord, settings: Settings) -> Path:
 def frames(job: JobRecord, settings: Settings, start: int, stop: int | None, stride: int,
            with_geometry: bool, contacts: bool) -> Frames:
     """service.api.frames.frames of the job's result (running or not); 422 for a bad range."""
-    from engine.results.writer import open_result
+    from engine.results.reader import open_result
 
     path = live_result(job, settings)
     try:
@@ -234,7 +234,7 @@ def report(job: JobRecord, settings: Settings, scene_text: str, root: str) -> st
     meta: dict[str, Any] = {}
     snapshot = None
     if (d / RESULT_FILE).is_file():
-        from engine.results.writer import open_result
+        from engine.results.reader import open_result
 
         names = [p.name for p in plots(job, settings)]
         with open_result(d / RESULT_FILE) as r:

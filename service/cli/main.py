@@ -479,7 +479,7 @@ def _listed(values: list[str] | None) -> list[str] | None:
 def cmd_plot(args: argparse.Namespace) -> int:
     """PNG plots of a result file: histories, energy, displacement components, snapshots."""
     from engine.results.plots import plot_all, snapshot_steps  # matplotlib only when plotting
-    from engine.results.writer import open_result
+    from engine.results.reader import open_result
 
     blocks = _listed(args.blocks)
     try:

@@ -93,6 +93,7 @@ def run(args: argparse.Namespace) -> int:
     from redis.exceptions import ConnectionError as RedisConnectionError
     from rq import Queue
 
+    import engine.results.reader  # noqa: F401
     import engine.results.writer  # noqa: F401
     import engine.step.simulation  # noqa: F401
     import schemas.convert  # noqa: F401
