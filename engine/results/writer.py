@@ -43,7 +43,7 @@ from engine.results.layout import (
     point_velocities,
     transform_points,
 )
-from engine.step.frame import ENERGY_NAMES, Frame
+from engine.step.frame import ENERGY_NAMES, REMOVED, Frame
 
 log = logging.getLogger(__name__)
 
@@ -337,7 +337,8 @@ class ResultWriter:
             self._ignored_energies |= extra
         scalars = (frame.step, frame.time, frame.dt, frame.open_close_iterations,
                    frame.max_penetration,
-                   tuple(frame.energies.get(name, np.nan) for name in ENERGY_NAMES))
+                   tuple(frame.energies.get(name, 0.0 if name in REMOVED else np.nan)
+                         for name in ENERGY_NAMES))
         nbytes = (sum(a.nbytes for a in arrays.values())
                   + sum(a.nbytes for a in contacts.values())
                   + 72 * len(st.vertices))  # VTKHDF points written per step
