@@ -79,6 +79,21 @@ def _publish(tmp: Path, path: Path, overwrite: bool) -> None:
     tmp.unlink()
 
 
+def write_stages(f: h5py.File, stages: list[dict[str, Any]]) -> None:
+    """The `/stages` group of a staged run (layout: :mod:`engine.results.layout`)."""
+    g = f.create_group("stages")
+    g.create_dataset("names", data=[s["name"] for s in stages], dtype=_STR)
+    for key in ("start_time", "end_time"):
+        g[key] = np.array([s[key] for s in stages], float)
+    for key in ("start_step", "end_step"):
+        g[key] = np.array([s[key] for s in stages], np.int64)
+    g["removed_energy"] = np.array([s["removed_energy"] for s in stages], float)
+    g.create_dataset("status", data=[s["status"] for s in stages], dtype=_STR)
+    g.create_dataset("removed_blocks", data=[json.dumps(s["removed_blocks"]) for s in stages],
+                     dtype=_STR)
+    g.create_dataset("bolts", data=[json.dumps(s["bolts"]) for s in stages], dtype=_STR)
+
+
 class ResultWriter:
     """Writes one run to one HDF5 file as it goes; implements the :class:`Recorder` protocol.
 
@@ -447,6 +462,8 @@ class ResultWriter:
             f.attrs["message"] = message
             f.attrs["summary"] = text
             f.attrs["n_steps"] = np.int64(self.n_flushed)
+            if summary and summary.get("stages"):
+                write_stages(f, summary["stages"])
 
     # --- context manager: a writer left without end() says so in its status
     def __enter__(self) -> ResultWriter:

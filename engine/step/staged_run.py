@@ -152,8 +152,14 @@ def run_stages(full: Model, stages: Sequence[Stage], recorder: Recorder | None =
     front = None if recorder is None else FullFrames(recorder, full)
     records: list[StageRecord] = []
     result: RunResult | None = None
+    gone: dict[int, dict[str, Any]] = {}  # removed block -> where and when it went
     for k in range(first, len(stages)):
         before = set(ledger.blocks) if ledger.stage >= 0 else set(range(len(full.blocks)))
+        if state is not None:
+            for pos, b in enumerate(ledger.blocks):
+                if b in stages[k].removed:
+                    gone[b] = {"centroid": state.centroid[pos].tolist(),
+                               "removed_in_stage": stages[k].name, "removed_at": state.time}
         energy0 = 0.0 if state is None else state.energies.get("removed_energy", 0.0)
         model, state = _transition(full, stages, k, state, ledger)
         ledger.stage = k
@@ -186,6 +192,37 @@ def run_stages(full: Model, stages: Sequence[Stage], recorder: Recorder | None =
         {**dataclasses.asdict(r), "removed_blocks": [names[b] for b in r.removed_blocks]}
         for r in records]
     result.summary["removed_energy"] = state.energies.get("removed_energy", 0.0)
+    result.summary["blocks"] = _full_blocks(full, ledger, result.summary["blocks"], gone)
     if front is not None:
         front.close(result.status, result.message, result.summary)
     return result
+
+
+def _full_blocks(full: Model, ledger: Ledger, last: list[dict[str, Any]],
+                 gone: dict[int, dict[str, Any]]) -> list[dict[str, Any]]:
+    """The summary's blocks at full size: the last stage's, and each removed block where it
+    was when it went (at rest: its motion left the model with it)."""
+    out: list[dict[str, Any]] = []
+    pos = {b: k for k, b in enumerate(ledger.blocks)}
+    for b, blk in enumerate(full.blocks):
+        if b in pos:
+            out.append(last[pos[b]])
+            continue
+        c0 = blk.polyhedron.centroid
+        c = gone.get(b, {}).get("centroid", c0.tolist())
+        out.append({"name": blk.name or f"block{b}", "centroid": c, "rotation": [0.0] * 3,
+                    "displacement": (np.asarray(c) - c0).tolist(), "velocity": [0.0] * 6,
+                    "removed": True, **{k: v for k, v in gone.get(b, {}).items()
+                                        if k != "centroid"}})
+    return out
+
+
+def run_scene(model: Model, stages: Sequence[Stage], **kwargs: Any) -> RunResult:
+    """A staged run when there are stages, else one :func:`run` of the model (the keyword
+    arguments of :func:`run_stages`; `checkpoints` and `resume` only with stages)."""
+    if stages:
+        return run_stages(model, stages, **kwargs)
+    kwargs.pop("checkpoints", None)
+    if kwargs.pop("resume", None) is not None:
+        raise ValueError("only a staged run resumes from a stage's checkpoint")
+    return run(model, **kwargs)

@@ -61,7 +61,8 @@ class Process:
 def _simulation(build: BuildResult, scene_text: str, job_dir: Path,
                 ctx: TaskContext) -> Outcome:
     from engine.results.writer import ResultWriter
-    from engine.step.simulation import STATUS_CANCELLED, STATUS_COMPLETED, Progress, run
+    from engine.step.simulation import STATUS_CANCELLED, STATUS_COMPLETED, Progress
+    from engine.step.staged_run import run_scene
     from schemas.scene import SCHEMA_VERSION
 
     def progress(p: Progress) -> None:
@@ -72,8 +73,9 @@ def _simulation(build: BuildResult, scene_text: str, job_dir: Path,
                duration=build.model.controls.duration)
     writer = ResultWriter(job_dir / RESULT_FILE, overwrite=True, schema_version=SCHEMA_VERSION,
                           record_contacts=build.model.controls.record_contacts)
-    res = run(build.model, recorder=writer, progress=progress, should_stop=ctx.should_stop,
-              scene_json=scene_text)
+    res = run_scene(build.model, build.stages, recorder=writer, progress=progress,
+                    should_stop=ctx.should_stop, scene_json=scene_text,
+                    checkpoints=job_dir / "stages" if build.stages else None)
     write_json_atomic(job_dir / "summary.json", run_summary(res.summary, build))
     s = res.summary
     ctx.report(100.0 * min(1.0, s["simulated_time"] / build.model.controls.duration),

@@ -1,0 +1,257 @@
+"""Domains from a slope profile and a terrain grid, excavations, and staged runs, against
+numbers derived by hand (tests/excavation_scenes.py): the roof wedge's tetrahedron and its
+free fall, volumes of the excavated rock, a staged run equal to one stopped and resumed at
+each stage, the energy books across a stage, and bad input naming its field."""
+
+from __future__ import annotations
+
+import copy
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from engine.dynamics.state import State
+from engine.geometry.cutting.cut import cut_blocks
+from engine.geometry.domains import slope_polyhedron, terrain
+from engine.geometry.excavations import (
+    EXCAVATION_TAG_BASE,
+    axis_points,
+    excavate,
+    tunnel,
+    tunnel_section,
+)
+from engine.geometry.joints import joint_set_planes
+from engine.geometry.polyhedron import dip_normal
+from engine.geometry.shapes import box
+from engine.step.frame import energy_created
+from engine.step.staged_run import load_checkpoint, run_stages
+from schemas.convert import build_model
+from schemas.errors import SceneError
+from service.cli.main import main
+from tests.excavation_scenes import H, R_IN, WEDGE_VOLUME, roof_wedge_scene
+
+G = 9.81
+
+
+@pytest.fixture(scope="module")
+def wedge_build():  # noqa: ANN201
+    return build_model(roof_wedge_scene())
+
+
+def _wedge(build) -> int:  # noqa: ANN001
+    """The block whose faces are the three wedge joints (tags 0, 1, 2)."""
+    return next(k for k, b in enumerate(build.model.blocks)
+                if {0, 1, 2} <= set(b.polyhedron.face_tags.tolist()))
+
+
+def test_roof_wedge_is_the_analytic_tetrahedron(wedge_build) -> None:  # noqa: ANN001
+    """Volume √3 r² H (r = H / tan δ) and apex H above the roof, to 1e-9; the base
+    triangle's corners 2 r from the axis."""
+    w = wedge_build.model.blocks[_wedge(wedge_build)].polyhedron
+    assert w.volume == pytest.approx(WEDGE_VOLUME, rel=1e-9)
+    lo, hi = w.bounds
+    assert lo[2] == pytest.approx(0.0, abs=1e-9) and hi[2] == pytest.approx(H, rel=1e-9)
+    base = w.vertices[np.abs(w.vertices[:, 2]) < 1e-9]
+    assert np.allclose(np.linalg.norm(base[:, :2], axis=1), 2 * R_IN, rtol=1e-9)
+    assert wedge_build.excavated.count("cavern") == 1  # the core, one block
+    core = wedge_build.excavated.index("cavern")
+    assert wedge_build.model.blocks[core].polyhedron.volume == pytest.approx(6 * 3 * 12)
+
+
+def test_roof_wedge_falls_free_when_excavated(wedge_build, tmp_path: Path) -> None:  # noqa: ANN001
+    """Stage 2 removes the core: the wedge (c = 0) falls ½ g t² in t = 0.5 s within 1 %;
+    the arch around it and the base do not move (1e-4 m); the core's energy leaves with it
+    (removed_energy > 0) and the run creates none."""
+    res = run_stages(wedge_build.model, wedge_build.stages, checkpoints=tmp_path)
+    assert res.status == "completed", res.message
+    blocks = res.summary["blocks"]
+    w = _wedge(wedge_build)
+    fall = -blocks[w]["displacement"][2]
+    assert fall == pytest.approx(0.5 * G * 0.5**2, rel=0.01)
+    core = wedge_build.excavated.index("cavern")
+    for k, b in enumerate(blocks):
+        if k not in (w, core):
+            assert np.abs(b["displacement"]).max() < 1e-4, b["name"]
+    assert blocks[core]["removed"] and blocks[core]["removed_in_stage"] == "excavate"
+    st = res.summary["stages"]
+    assert [s["removed_blocks"] for s in st] == [[], [wedge_build.block_names[core]]]
+    assert st[1]["removed_energy"] > 0
+    e = res.state.energies
+    assert e["removed_energy"] == pytest.approx(st[1]["removed_energy"])
+    assert res.summary["energy"]["created_ratio"] < 1e-6
+
+
+def test_staged_run_equals_resumed_at_each_stage(wedge_build, tmp_path: Path) -> None:  # noqa: ANN001
+    """Run through the stages, and again from the checkpoint at the first stage's end: the
+    final states are equal bit for bit."""
+    whole = run_stages(wedge_build.model, wedge_build.stages, checkpoints=tmp_path / "a")
+    resumed = run_stages(wedge_build.model, wedge_build.stages,
+                         resume=load_checkpoint(tmp_path / "a" / "stage-1.npz"))
+    a, b = whole.state, resumed.state
+    for name in ("centroid", "affine", "rotation", "velocity", "stress"):
+        assert np.array_equal(getattr(a, name), getattr(b, name)), name
+    assert (a.time, a.step, a.dt) == (b.time, b.step, b.dt)
+    assert a.energies == b.energies
+    assert isinstance(b, State)
+
+
+def test_energy_books_balance_across_the_excavation(wedge_build) -> None:  # noqa: ANN001
+    """Stored + dissipated + removed − work stays ~0 through the stage change (1e-6 of
+    the work done)."""
+    res = run_stages(wedge_build.model, wedge_build.stages)
+    from engine.step.output import energies
+    from engine.step.simulation import Simulation
+    from engine.step.stages import stage_model
+    from engine.step.staged_run import Ledger
+
+    model, _ = stage_model(wedge_build.model, wedge_build.stages[-1], Ledger())
+    e = energies(Simulation(model, state=res.state).system, res.state)
+    assert abs(float(energy_created(e))) < 1e-6 * e["gravity_work"]
+    assert e["removed_energy"] > 0
+
+
+def test_slope_profile_is_the_polyhedron_and_the_planar_grid() -> None:
+    """A benched profile extruded equals the same prism written as a polyhedron, and a
+    terrain grid sampling the same planar faces gives the same blocks (volumes 1e-9)."""
+    prof = np.array([[0, 10], [10, 10], [20, 20], [30, 20]], float)
+    slope = slope_polyhedron(prof, 10.0, 270.0, [0, 0], 0.0)
+    x, y = np.arange(0, 31, 5.0), np.arange(0, 11, 5.0)
+    grid = terrain(x, y, np.tile(np.interp(x, prof[:, 0], prof[:, 1]), (len(y), 1)), 0.0)
+    # section: 10 m at z 10, 10 m ramping 10 -> 20 (mean 15), 10 m at 20 = 450 m², × 10 m
+    assert slope.volume == pytest.approx(10 * (10 * 10 + 10 * 15 + 10 * 20), rel=1e-12)
+    assert grid.domain.volume == pytest.approx(slope.volume, rel=1e-12)
+    joints = (joint_set_planes(dip_normal(60, 90), [3, 1, 2], 4.0, slope, 0)
+              + joint_set_planes(dip_normal(80, 0), [3, 1.3, 2], 4.0, slope, 1))
+    a = cut_blocks(slope, joints).blocks
+    b = cut_blocks(grid.domain, joints, tiles=grid.columns).blocks
+    assert len(a) == len(b) > 20
+    va, vb = np.sort([q.volume for q in a]), np.sort([q.volume for q in b])
+    assert np.allclose(va, vb, rtol=1e-9, atol=1e-9 * slope.volume)
+
+
+def test_scene_slope_equals_scene_polyhedron() -> None:
+    """`domain.slope` gives the blocks of the same shape as `domain.polyhedron`."""
+    prof = [[0, 10], [8, 10], [8, 14], [12, 14], [16, 22], [30, 22]]  # a bench 4 m high
+    poly = slope_polyhedron(np.array(prof, float), 12.0, 180.0, [0, 0], 0.0)
+    base = {"joints": [{"dip": 55, "dip_direction": 180, "point": [1, 1, 1], "spacing": 5},
+                       {"dip": 85, "dip_direction": 90, "point": [1, 1, 1], "spacing": 6}]}
+    a = build_model({**base, "domain": {"slope": {"profile": prof, "dip_direction": 180,
+                                                  "width": 12, "base": 0}}})
+    b = build_model({**base, "domain": {"polyhedron": {
+        "vertices": poly.vertices.tolist(), "faces": [f.tolist() for f in poly.faces]}}})
+    va = [blk.polyhedron.volume for blk in a.model.blocks]
+    vb = [blk.polyhedron.volume for blk in b.model.blocks]
+    assert np.allclose(va, vb, rtol=1e-9) and len(va) > 10
+
+
+def test_tunnel_removes_exactly_its_rock() -> None:
+    """A horseshoe tunnel through a jointed box, cut without merging slivers: the parts
+    inside fill it exactly (section area × length, 1e-9), no part straddles its surface,
+    and the rock's volume is kept."""
+    dom = box([-15, 0, -15], [15, 20, 15])
+    planes = (joint_set_planes(dip_normal(60, 30), [0.3, 0.1, 0.2], 3.0, dom, 0)
+              + joint_set_planes(dip_normal(10, 270), [0.3, 0.1, 0.2], 4.0, dom, 1))
+    blocks = cut_blocks(dom, planes).blocks
+    sec = tunnel_section("horseshoe", 6.0, sides=16)
+    area = 0.5 * float(np.sum(sec[:, 0] * np.roll(sec[:, 1], -1)
+                              - np.roll(sec[:, 0], -1) * sec[:, 1]))
+    exc = tunnel("T", sec, axis_points([0, -1, -3], 0.0, 0.0, 22.0))
+    parts, inside, parent = excavate(blocks, exc, EXCAVATION_TAG_BASE)
+    vin = sum(q.volume for q, i in zip(parts, inside, strict=True) if i)
+    assert vin == pytest.approx(area * 20.0, rel=1e-9)
+    assert sum(q.volume for q in parts) == pytest.approx(30 * 20 * 30, rel=1e-12)
+    for q, i in zip(parts, inside, strict=True):
+        v = q.vertices[q.surface_vertex_ids]
+        if i:  # every corner inside or on the surface (within 1e-6 m)
+            assert exc.contains(v, tol=-1e-6).all()
+        else:  # no corner deeper inside than 1e-6 m
+            assert not exc.contains(v, tol=1e-6).any()
+    assert set(parent.tolist()) == set(range(len(blocks)))
+    # the horseshoe's half-width at the invert: r (√3 − 1)
+    assert sec[:, 0].max() == pytest.approx(3.0 * (math.sqrt(3) - 1), rel=1e-12) or \
+        np.isclose(sec[sec[:, 1] == 0, 0], 3.0 * (math.sqrt(3) - 1)).any()
+
+
+# --------------------------------------------------------------------------- bad input
+
+OPEN_STL = """solid open
+facet normal 0 0 -1
+ outer loop
+  vertex 0 0 0
+  vertex 1 1 0
+  vertex 1 0 0
+ endloop
+endfacet
+facet normal 0 -1 0
+ outer loop
+  vertex 0 0 0
+  vertex 1 0 0
+  vertex 0 0 1
+ endloop
+endfacet
+endsolid open
+"""
+
+NAN_GRID = """ncols 3
+nrows 3
+xllcorner 0
+yllcorner 0
+cellsize 5
+NODATA_value -9999
+20 21 22
+20 -9999 22
+20 21 nan
+"""
+
+
+def _problems(scene: dict) -> list[dict[str, str]]:
+    with pytest.raises(SceneError) as info:
+        build_model(scene)
+    return info.value.problems
+
+
+@pytest.mark.parametrize("case", ["open_stl", "nan_grid", "outside", "unknown_bolt"])
+def test_bad_input_names_the_field(case: str) -> None:
+    scene = copy.deepcopy(roof_wedge_scene())
+    if case == "open_stl":
+        scene["domain"] = {"mesh": {"data": OPEN_STL, "format": "stl"}}
+        scene["joints"], scene["excavations"], scene["stages"] = [], [], []
+        scene["boundary"] = {}
+        loc, text = "domain.mesh.data", "open"
+    elif case == "nan_grid":
+        scene["domain"] = {"terrain": {"data": NAN_GRID, "format": "asc", "base": 0}}
+        scene["joints"], scene["excavations"], scene["stages"] = [], [], []
+        scene["boundary"] = {}
+        loc, text = "domain.terrain.data", "without an elevation"
+    elif case == "outside":
+        scene["excavations"][0]["cavern"]["center"] = [100, 0, 0]
+        loc, text = "excavations[0] ('cavern')", "outside the domain"
+    else:
+        scene["stages"][1]["add_bolts"] = ["B99"]
+        loc, text = "stages[1].add_bolts[0]", "unknown bolt 'B99'"
+    problems = _problems(scene)
+    assert any(p["loc"] == loc and text in p["msg"] for p in problems), problems
+
+
+def test_cli_exit_2_and_api_422(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """The command line exits 2 naming the field; the REST service answers 422, and refuses
+    a file path (a server never reads files a scene names)."""
+    scene = roof_wedge_scene()
+    scene["stages"][1]["remove_bolts"] = ["nope"]
+    path = tmp_path / "s.json"
+    path.write_text(json.dumps(scene))
+    code = main(["validate", str(path)])
+    err = capsys.readouterr().err
+    assert code == 2 and "stages[1].remove_bolts[0]: unknown bolt 'nope'" in err
+    from tests.service_helpers import make_client
+
+    with make_client(tmp_path / "data") as client:
+        for bad, loc in ((scene, "stages[1].remove_bolts[0]"),
+                         ({"domain": {"terrain": {"file": "/etc/passwd", "base": 0}}},
+                          "domain.terrain.file")):
+            r = client.post("/processes/simulation/execution", json={"inputs": {"scene": bad}})
+            assert r.status_code == 422, r.text
+            assert any(e["loc"] == loc for e in r.json()["errors"]), r.json()
