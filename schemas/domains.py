@@ -15,7 +15,7 @@ from pathlib import Path
 from typing import Annotated, Literal
 
 import numpy as np
-from pydantic import Field, model_validator
+from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 from engine.geometry.domains import (
     Terrain,
@@ -28,9 +28,21 @@ from engine.geometry.domains import (
 from engine.geometry.polyhedron import Polyhedron, polyhedron_problems
 from schemas.errors import Problems
 
-# scene.py imports this module after defining these (a cycle by design: the shapes are
-# fields of its DomainSpec)
-from schemas.scene import DipDirection, Positive, _exactly_one, _Model
+
+class _Model(BaseModel):
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
+
+
+def _exactly_one(obj: BaseModel, names: tuple[str, ...]) -> None:
+    given = [n for n in names if getattr(obj, n) is not None]
+    if len(given) != 1:
+        got = "none" if not given else " and ".join(f"'{n}'" for n in given)
+        raise ValueError(f"give exactly one of {', '.join(repr(n) for n in names)} "
+                         f"(got {got})")
+
+
+Positive = Annotated[float, Field(gt=0)]
+DipDirection = Annotated[float, Field(ge=-360, le=360)]
 
 Point2 = Annotated[list[float], Field(min_length=2, max_length=2)]
 #: the most triangles a mesh domain may have (its facets' planes all cut its bounding box)

@@ -33,6 +33,7 @@ from engine.model import (
     SeismicCoefficientControls,
     StrengthReductionControls,
 )
+from schemas.domains import MeshSpec, SlopeSpec, TerrainSpec
 from schemas.errors import (
     Problems,
     SceneError,
@@ -41,6 +42,7 @@ from schemas.errors import (
     format_loc,
     from_validation_error,
 )
+from schemas.stages import ExcavationSpec, StageSpec
 
 #: version of the scene format; a scene may state it as ``"schema_version"``
 SCHEMA_VERSION = "1.0"
@@ -168,9 +170,6 @@ class PolyhedronSpec(_Model):
 
     vertices: list[Vec3]
     faces: list[list[Annotated[int, Field(ge=0)]]]
-
-
-from schemas.domains import MeshSpec, SlopeSpec, TerrainSpec  # noqa: E402 (uses the above)
 
 
 class DomainSpec(_Model):
@@ -819,7 +818,11 @@ DEFAULT_MATERIAL_NAME = "rock"
 DEFAULT_JOINT_MATERIAL_NAME = "joint"
 
 
-from schemas.stages import ExcavationSpec, StageSpec  # noqa: E402 (uses the above)
+StageSpec.model_rebuild(_types_namespace={
+    "BoxSpec": BoxSpec, "WaterSpec": WaterSpec, "JointMaterialSpec": JointMaterialSpec,
+    "SeismicSpec": SeismicSpec, "GroundMotionSpec": GroundMotionSpec, "Target": Target,
+    "Name": Name})
+ExcavationSpec.model_rebuild()
 
 
 class Scene(_Model):

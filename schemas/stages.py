@@ -12,22 +12,15 @@ from typing import Annotated, Literal
 
 from pydantic import Field, model_validator
 
-# scene.py imports this module after defining these
-from schemas.scene import (
-    Azimuth,
-    BoxSpec,
-    GroundMotionSpec,
-    JointMaterialSpec,
-    Name,
-    Positive,
-    SeismicSpec,
-    Target,
-    Vec3,
-    WaterSpec,
-    _between,
-    _exactly_one,
-    _Model,
-)
+from schemas.domains import Positive, _exactly_one, _Model
+
+# BoxSpec, GroundMotionSpec, JointMaterialSpec, SeismicSpec, Target and WaterSpec are the
+# scene's own: scene.py resolves them (`model_rebuild`) once it has defined them
+Name = Annotated[str, Field(min_length=1, max_length=100)]
+Vec3 = Annotated[list[float], Field(min_length=3, max_length=3)]
+Azimuth = Annotated[float, Field(ge=0, le=360)]
+Plunge = Annotated[float, Field(ge=-90, le=90)]
+DipDirection = Annotated[float, Field(ge=-360, le=360)]
 
 Point2 = Annotated[list[float], Field(min_length=2, max_length=2)]
 
@@ -45,7 +38,7 @@ class TunnelSpec(_Model):
         16, description="vertices of a circular section (arcs get about half as many)")
     start: Vec3 | None = Field(None, description="m, the invert's centre at the portal")
     trend: Azimuth | None = Field(None, description="degrees clockwise from North")
-    plunge: _between(-90, 90, "degrees") = Field(0.0, description="degrees below "
+    plunge: Plunge = Field(0.0, description="degrees below "
                                                                   "horizontal")
     length: Positive | None = Field(None, description="m along the axis")
     axis: Annotated[list[Vec3], Field(min_length=2, max_length=1000)] | None = Field(
@@ -78,7 +71,7 @@ class BenchSpec(_Model):
     `origin` (x, y of s = 0)."""
 
     section: Annotated[list[Point2], Field(min_length=3, max_length=1000)]
-    dip_direction: _between(-360, 360, "degrees")
+    dip_direction: DipDirection
     width: Positive
     origin: Point2 = Field(default_factory=lambda: [0.0, 0.0])
 
@@ -108,22 +101,22 @@ class StageSpec(_Model):
     duration: Positive = Field(description="s simulated in this stage")
     excavate: list[Name] = Field(default_factory=list,
                                  description="excavations (names) dug out as it starts")
-    excavate_region: BoxSpec | None = Field(
+    excavate_region: BoxSpec | None = Field(  # noqa: F821
         None, description="also remove every block whose centroid lies in this box")
     add_bolts: list[Name] = Field(default_factory=list, description="bolts or bolt patterns "
                                   "(names, prefixes) installed as it starts")
     remove_bolts: list[Name] = Field(default_factory=list)
-    water: WaterSpec | None = Field(None, description="the water from now on")
+    water: WaterSpec | None = Field(None, description="the water from now on")  # noqa: F821
     drain: bool = Field(False, description="no water from now on")
-    joint_materials: dict[Name, JointMaterialSpec] = Field(
+    joint_materials: dict[Name, JointMaterialSpec] = Field(  # noqa: F821
         default_factory=dict, description="joint materials (by name) given new strengths")
-    seismic: SeismicSpec | None = Field(None, description="pseudo-static load from now on")
-    ground_motion: GroundMotionSpec | None = Field(
+    seismic: SeismicSpec | None = Field(None, description="pseudo-static load from now on")  # noqa: F821
+    ground_motion: GroundMotionSpec | None = Field(  # noqa: F821
         None, description="acceleration record of the ground from now on (its time starts "
                           "with the stage)")
     quiet: bool = Field(False, description="no seismic load and no ground motion from now on")
-    fix: list[Target] = Field(default_factory=list)
-    free: list[Target] = Field(default_factory=list)
+    fix: list[Target] = Field(default_factory=list)  # noqa: F821
+    free: list[Target] = Field(default_factory=list)  # noqa: F821
 
     @model_validator(mode="after")
     def _consistent(self) -> StageSpec:

@@ -46,3 +46,54 @@ def roof_wedge_scene(friction: float = 30.0, settle: float = 0.1, fall: float = 
         "stages": [{"name": "settle", "duration": settle},
                    {"name": "excavate", "duration": fall, "excavate": ["cavern"]}],
     }
+
+
+#: the sidewall block: a prism on one joint dipping PSI towards the cavern (west) out of its
+#: east wall (x = 3), released by a vertical back crack (x = 5), two vertical sides
+#: (y = ±2) and a horizontal top (z = -0.5); the base through (3, 0, -2.5)
+PSI = 30.0
+
+
+def _rect(points: list[list[float]], grow: float = 1.3) -> list[list[float]]:
+    p = np.asarray(points, float)
+    return (p.mean(axis=0) + grow * (p - p.mean(axis=0))).tolist()
+
+
+def sidewall_scene(friction: float, fall: float = 0.5) -> dict[str, Any]:
+    """The sidewall block in the 6 m wide cavern of :func:`roof_wedge_scene` (no wedge);
+    the base joint's friction angle `friction`, the release joints frictionless."""
+    t = math.tan(math.radians(PSI))
+    z3, z5 = -2.5, -2.5 + 2 * t  # the base at the wall and at the back crack
+    base = _rect([[3, -2, z3], [5, -2, z5], [5, 2, z5], [3, 2, z3]])
+    crack = _rect([[5, -2, z5], [5, 2, z5], [5, 2, -0.5], [5, -2, -0.5]])
+    top = _rect([[3, -2, -0.5], [5, -2, -0.5], [5, 2, -0.5], [3, 2, -0.5]])
+    sides = [_rect([[3, y, z3], [5, y, z5], [5, y, -0.5], [3, y, -0.5]]) for y in (-2, 2)]
+    rel = {"joint_material": "release"}
+    joints = [
+        {"name": "base", "dip": PSI, "dip_direction": 270, "point": [3, 0, z3],
+         "extent": {"polygon": base}, "joint_material": "slide"},
+        {"name": "crack", "dip": 90, "dip_direction": 90, "point": [5, 0, -1],
+         "extent": {"polygon": crack}, **rel},
+        {"name": "top", "dip": 0, "dip_direction": 0, "point": [4, 0, -0.5],
+         "extent": {"polygon": top}, **rel},
+        {"name": "south", "dip": 90, "dip_direction": 180, "point": [4, -2, -1],
+         "extent": {"polygon": sides[0]}, **rel},
+        {"name": "north", "dip": 90, "dip_direction": 0, "point": [4, 2, -1],
+         "extent": {"polygon": sides[1]}, **rel},
+        {"name": "floor", "dip": 0, "dip_direction": 0, "point": [0, 0, -3]},
+    ]
+    return {
+        "name": "sidewall block",
+        "joint_materials": {"slide": {"friction_angle": friction},
+                            "release": {"friction_angle": 0.0},
+                            "rock": {"friction_angle": 45.0}},
+        "default_joint_material": "rock",
+        "domain": {"box": {"min": [-6, -6, -8], "max": [8, 6, 6]}},
+        "joints": joints,
+        "excavations": [{"name": "cavern",
+                         "cavern": {"center": [0, 0, -1.5], "size": [14, 6, 3]}}],
+        "boundary": {"fixed_blocks": [{"contains": [0, 0, -5]}]},
+        "analysis": {"time_step": 2e-3, "record_interval": 10},
+        "stages": [{"name": "settle", "duration": 0.05},
+                   {"name": "excavate", "duration": fall, "excavate": ["cavern"]}],
+    }

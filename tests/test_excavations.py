@@ -31,7 +31,7 @@ from engine.step.staged_run import load_checkpoint, run_stages
 from schemas.convert import build_model
 from schemas.errors import SceneError
 from service.cli.main import main
-from tests.excavation_scenes import H, R_IN, WEDGE_VOLUME, roof_wedge_scene
+from tests.excavation_scenes import R_IN, WEDGE_VOLUME, H, roof_wedge_scene
 
 G = 9.81
 
@@ -104,8 +104,8 @@ def test_energy_books_balance_across_the_excavation(wedge_build) -> None:  # noq
     res = run_stages(wedge_build.model, wedge_build.stages)
     from engine.step.output import energies
     from engine.step.simulation import Simulation
-    from engine.step.stages import stage_model
     from engine.step.staged_run import Ledger
+    from engine.step.stages import stage_model
 
     model, _ = stage_model(wedge_build.model, wedge_build.stages[-1], Ledger())
     e = energies(Simulation(model, state=res.state).system, res.state)
@@ -255,3 +255,51 @@ def test_cli_exit_2_and_api_422(tmp_path: Path, capsys: pytest.CaptureFixture[st
             r = client.post("/processes/simulation/execution", json={"inputs": {"scene": bad}})
             assert r.status_code == 422, r.text
             assert any(e["loc"] == loc for e in r.json()["errors"]), r.json()
+
+
+# --------------------------------------------------------------------------- key blocks
+
+
+def _key_table(build):  # noqa: ANN001, ANN202
+    from engine.analyses.keyblocks import key_blocks
+    from engine.geometry.excavations import EXCAVATION_TAG_BASE as BASE
+
+    m = build.model
+    strength = {tag: (math.tan(m.joint_materials[j].friction_angle_rad),
+                      m.joint_materials[j].cohesion) for tag, j in m.joint_material_of_tag.items()}
+    dj = m.joint_materials[m.default_joint_material]
+    dens = np.array([m.materials[b.material].density for b in m.blocks])
+    skip = {k for k, o in enumerate(build.excavated) if o is not None}
+    return key_blocks([b.polyhedron for b in m.blocks], dens, m.gravity,
+                      {BASE + k for k in range(10)}, strength,
+                      (math.tan(dj.friction_angle_rad), dj.cohesion), skip)
+
+
+def test_roof_wedge_is_a_falling_key_block(wedge_build) -> None:  # noqa: ANN001
+    """Block theory: the roof wedge is removable and falls (FS 0); the arch is not
+    removable."""
+    table = {k.block: k for k in _key_table(wedge_build)}
+    w = table[_wedge(wedge_build)]
+    assert w.removable and w.mode == "falling" and w.factor_of_safety == 0.0
+    assert any(not k.removable for k in table.values())
+
+
+@pytest.mark.parametrize("delta", [-2.0, 2.0])
+def test_sidewall_block_le_and_dda_agree(delta: float) -> None:
+    """The sidewall block slides on its base alone: LE FS = tan φ / tan ψ (c = 0) within
+    2 %; the DDA run slides (over 2 cm in 0.5 s: a = g (sin ψ − cos ψ tan φ) = 0.39 m/s²
+    gives 4.8 cm at φ = ψ − 2°) when FS < 1 and holds (under 1 mm) when FS > 1."""
+    from tests.excavation_scenes import PSI, sidewall_scene
+
+    phi = PSI + delta
+    build = build_model(sidewall_scene(phi))
+    table = [k for k in _key_table(build) if k.mode != "stable"]
+    assert len(table) == 1, table
+    k = table[0]
+    expected = math.tan(math.radians(phi)) / math.tan(math.radians(PSI))
+    assert k.mode == "sliding on one plane" and k.removable
+    assert k.factor_of_safety == pytest.approx(expected, rel=0.02)
+    res = run_stages(build.model, build.stages)
+    assert res.status == "completed", res.message
+    moved = float(np.linalg.norm(res.summary["blocks"][k.block]["displacement"]))
+    assert (moved > 0.02) if expected < 1 else (moved < 1e-3), moved
