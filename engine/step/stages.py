@@ -26,6 +26,7 @@ from typing import Any
 
 import numpy as np
 
+from engine.contact.constraints import OPEN
 from engine.dynamics.block_terms import kinetic_energy
 from engine.dynamics.motion import mass_matrices, mass_properties
 from engine.dynamics.state import ContactMemory, State
@@ -110,8 +111,11 @@ def stage_model(full: Model, stage: Stage, ledger: Ledger) -> tuple[Model, np.nd
 
 def _contact_spring_energy(system: BlockSystem, memory: ContactMemory,
                            rows: np.ndarray) -> float:
-    """Energy (J) the closed contacts `rows` of the memory held at the last step's end."""
-    return (0.5 * system.kn * float(np.sum(memory.gap[rows] ** 2))
+    """Energy (J) the contacts `rows` of the memory held at the last step's end, as
+    :func:`engine.step.advance.spring_energy` counts it (the normal spring of the closed
+    ones; the memory also keeps open contacts pressed in, whose springs hold nothing)."""
+    closed = memory.mode[rows] != OPEN
+    return (0.5 * system.kn * float(np.sum(memory.gap[rows][closed] ** 2))
             + 0.5 * system.ks * float(np.sum(memory.shear[rows] ** 2)))
 
 
