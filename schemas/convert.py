@@ -85,6 +85,9 @@ class BuildResult:
     stages: list[Stage] = field(default_factory=list)
     #: the excavation each block lies in (None: rock that stays), by block index
     excavated: list[str | None] = field(default_factory=list)
+    #: the scene's excavations in order (excavation k's surface carries face tag
+    #: engine.geometry.excavations.EXCAVATION_TAG_BASE + k)
+    excavation_names: list[str] = field(default_factory=list)
 
     def block_index(self, name: str) -> int:
         """Index of the block called `name` (KeyError if none)."""
@@ -779,6 +782,7 @@ def build_model(scene: Scene | str | Path | dict[str, Any],
     stages = _stages(scene, model, owner, find, jmat_names)
     return BuildResult(
         model=model, stages=stages, excavated=owner + [None] * len(scene.blocks),
+        excavation_names=[e.name for e in scene.excavations],
         block_names=names,
         block_sources=["cut"] * len(cut) + ["explicit"] * len(scene.blocks),
         material_names=mat_names,

@@ -134,15 +134,18 @@ def mode_and_factor(planes: list[Plane], weight: float, r: np.ndarray
 
 
 def key_blocks(polys: list[Polyhedron], density: np.ndarray, gravity: np.ndarray,
-               free_tags: set[int], strength: dict[int, tuple[float, float]],
-               default: tuple[float, float], skip: set[int] = frozenset()) -> list[KeyBlock]:
-    """The key-block table of every block with a face tagged in `free_tags` (an
-    excavation's surface), except the blocks in `skip` (the excavated ones)."""
+               exposed: set[int], strength: dict[int, tuple[float, float]],
+               default: tuple[float, float], skip: set[int] = frozenset(),
+               free: set[int] = frozenset()) -> list[KeyBlock]:
+    """The key-block table of every block with a face tagged in `exposed` (an excavation's
+    surface), except the blocks in `skip` (the excavated ones). Faces tagged in `exposed`
+    or `free` (the domain's outer surface, other openings already dug) touch nothing."""
+    free_tags = set(exposed) | set(free)
     g = np.asarray(gravity, float)
     r = g / np.linalg.norm(g)
     out = []
     for b, poly in enumerate(polys):
-        if b in skip or not np.isin(poly.face_tags, list(free_tags)).any():
+        if b in skip or not np.isin(poly.face_tags, list(exposed)).any():
             continue
         planes = contact_planes(poly, free_tags, strength, default)
         weight = float(density[b] * poly.volume * np.linalg.norm(g))

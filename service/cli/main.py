@@ -653,6 +653,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--plot", metavar="OUT.png", help="write the stereonet to this PNG file")
     p.set_defaults(func=cmd_kinematics)
 
+    from service.cli.keyblocks import add_parser as add_keyblocks
+
+    add_keyblocks(sub, _load)
+
     p = sub.add_parser(
         "sweep", help="sweep or Monte Carlo analysis: probability of failure",
         description="N realisations of the scene's parameters (the scene's sweep.parameters, "
