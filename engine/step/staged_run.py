@@ -38,6 +38,16 @@ class FullFrames:
         self.bolt_rows = np.zeros(0, np.int64)  # full bolt index of each acting bolt
         self.started = False
 
+    def hold(self, state: State, blocks: list[int]) -> None:
+        """Where the blocks `blocks` (full-model indices) are in `state`: a block removed
+        next stays there in the frames that follow (a resumed run knows it from its
+        checkpoint, as the whole run does)."""
+        from scipy.spatial.transform import Rotation
+
+        k = np.asarray(blocks, np.int64)
+        self.centroid[k], self.affine[k] = state.centroid, state.affine
+        self.rotation[k] = Rotation.from_matrix(state.rotation).as_rotvec().reshape(-1, 3)
+
     def begin(self, model: Model, scene_json: str | None = None) -> None:
         if not self.started:
             self.inner.begin(self.full, scene_json)
@@ -155,6 +165,8 @@ def run_stages(full: Model, stages: Sequence[Stage], recorder: Recorder | None =
     gone: dict[int, dict[str, Any]] = {}  # removed block -> where and when it went
     for k in range(first, len(stages)):
         before = set(ledger.blocks) if ledger.stage >= 0 else set(range(len(full.blocks)))
+        if state is not None and front is not None:
+            front.hold(state, ledger.blocks)
         if state is not None:
             for pos, b in enumerate(ledger.blocks):
                 if b in stages[k].removed:
