@@ -213,6 +213,13 @@ class Result:
                  "removed_blocks": json.loads(_text(g["removed_blocks"][k])),
                  "bolts": json.loads(_text(g["bolts"][k]))} for k in range(len(names))]
 
+    def removed_at(self, time: float) -> set[int]:
+        """Blocks gone at `time` s: those removed by a stage that started before it (the
+        frame at a stage's start is the stage before's end, the blocks still there)."""
+        names = list(self.block_names)
+        return {names.index(n) for st in self.stages() if st["start_time"] < time
+                for n in st["removed_blocks"] if n in names}
+
     def water_resultants(self) -> np.ndarray | None:
         """Resultant water force on each block `(K, n, 3)` N (None for a dry model)."""
         return self._read("water/resultant") if "water" in self._file else None
