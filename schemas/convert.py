@@ -234,8 +234,13 @@ def _cut_domain(scene: Scene, p: Problems, warnings: list[str], base_dir: Path |
     if len(pieces) != 1 or pieces[0] is not domain:
         tiles = None
     planes: list[JointPlane] = []
-    if not scene.joints:
-        blocks = list(pieces)
+    if not scene.joints:  # one block per piece, a concave one with its convex pieces
+        from engine.geometry.cutting.cut import convex_decomposition
+
+        blocks = [q if q.is_convex or q.pieces else
+                  cut_blocks(q, [], min_block_volume=0.0, min_block_width=0.0,
+                             tiles=tiles).blocks[0] if tiles is not None else
+                  convex_decomposition(q) for q in pieces]
     else:
         planes = _joint_planes(scene, domain, p)
         if p:
