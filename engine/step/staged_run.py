@@ -128,10 +128,16 @@ def checkpoint_fits(full: Model, stages: Sequence[Stage], ledger: Ledger) -> str
     one of the run's, and the blocks in play at its end the same."""
     if not 0 <= ledger.stage < len(stages):
         return f"the checkpoint ends stage {ledger.stage + 1}; the scene has {len(stages)}"
-    _, keep = stage_model(full, stages[ledger.stage], ledger)
+    model, keep = stage_model(full, stages[ledger.stage], ledger)
+    name = stages[ledger.stage].name
     if keep.tolist() != ledger.blocks:
-        return (f"the blocks in play at the end of stage '{stages[ledger.stage].name}' differ "
-                "from the checkpoint's (another domain, joints or excavation?)")
+        return (f"the blocks in play at the end of stage '{name}' differ from the "
+                "checkpoint's (another domain, joints or excavation?)")
+    bolts = [b.name for b in model.bolts]
+    if bolts != ledger.bolts:
+        return (f"the bolts acting at the end of stage '{name}' differ from the checkpoint's "
+                f"({', '.join(bolts) or 'none'} against {', '.join(ledger.bolts) or 'none'}): "
+                "change only the stages after it (a bolt no stage adds acts from the start)")
     return ""
 
 
