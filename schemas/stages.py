@@ -110,7 +110,8 @@ class StageSpec(_Model):
     drain: bool = Field(False, description="no water from now on")
     joint_materials: dict[Name, JointMaterialSpec] = Field(  # noqa: F821
         default_factory=dict, description="joint materials (by name) given new strengths")
-    seismic: SeismicSpec | None = Field(None, description="pseudo-static load from now on")  # noqa: F821
+    seismic: SeismicSpec | None = Field(  # noqa: F821
+        None, description="pseudo-static load from now on")
     ground_motion: GroundMotionSpec | None = Field(  # noqa: F821
         None, description="acceleration record of the ground from now on (its time starts "
                           "with the stage)")

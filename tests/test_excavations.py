@@ -84,7 +84,8 @@ def test_roof_wedge_falls_free_when_excavated(wedge_build, tmp_path: Path) -> No
     assert res.summary["energy"]["created_ratio"] < 1e-6
 
 
-def test_staged_run_equals_resumed_at_each_stage(wedge_build, tmp_path: Path) -> None:  # noqa: ANN001
+def test_staged_run_equals_resumed_at_each_stage(wedge_build,  # noqa: ANN001
+                                                 tmp_path: Path) -> None:
     """Run through the stages, and again from the checkpoint at the first stage's end: the
     final states are equal bit for bit."""
     whole = run_stages(wedge_build.model, wedge_build.stages, checkpoints=tmp_path / "a")
@@ -343,3 +344,40 @@ def test_cli_runs_stages_resumes_and_tables_key_blocks(
     wedge = [r for r in rows if r["mode"] == "falling"]
     assert len(wedge) == 1 and wedge[0]["dda"] == "moved"
     assert wedge[0]["weight"] == pytest.approx(2600 * 9.81 * WEDGE_VOLUME, rel=1e-9)
+
+
+def test_stage_settings_resolve_in_order() -> None:
+    """Each stage's complete setting: a bolt removed and another added, water on then drained,
+    a seismic load then quiet, a block fixed then freed, a region excavated, a ground-motion
+    record whose time starts with its stage."""
+    scene = {
+        "domain": {"box": {"min": [0, 0, 0], "max": [10, 10, 10]}},
+        "joints": [{"name": "J", "dip": 90, "dip_direction": 90, "point": [5, 5, 5]}],
+        "bolts": [{"name": "b1", "head": [2, 5, 5], "anchor": [8, 5, 5]},
+                  {"name": "b2", "head": [2, 5, 6], "anchor": [8, 5, 6]}],
+        "stages": [
+            {"name": "a", "duration": 0.1},
+            {"name": "b", "duration": 0.2, "remove_bolts": ["b2"],
+             "fix": [{"contains": [2, 5, 5]}],
+             "water": {"joint_pressures": [{"joint_material": "joint", "pressure": 1e4}]},
+             "seismic": {"kh": 0.1, "azimuth": 90}},
+            {"name": "c", "duration": 0.3, "add_bolts": ["b1"], "drain": True, "quiet": True,
+             "free": [{"contains": [2, 5, 5]}],
+             "excavate_region": {"min": [5, 0, 0], "max": [10, 10, 10]}},
+            {"name": "d", "duration": 0.4, "ground_motion": {"time": [0, 1],
+                                                             "acceleration": [[0, 0, 0],
+                                                                              [1, 0, 0]]}},
+        ]}
+    build = build_model(scene)
+    a, b, c, d = build.stages
+    west = build.block_names.index(next(n for k, n in enumerate(build.block_names)
+                                        if build.model.blocks[k].polyhedron.centroid[0] < 5))
+    assert [s.end_time for s in build.stages] == pytest.approx([0.1, 0.3, 0.6, 1.0])
+    assert build.model.controls.duration == pytest.approx(1.0)
+    # b2, which no stage adds, acts from the start; b1 from the stage that adds it
+    assert (a.bolts, b.bolts, c.bolts) == (("b2",), (), ("b1",))
+    assert a.water is None and b.water.joint_pressure == {0: 1e4} and c.water is None
+    assert b.seismic.kh == 0.1 and c.seismic is None and c.ground_motion is None
+    assert west in b.fixed and west not in c.fixed
+    assert not b.removed and c.removed == d.removed == frozenset({1 - west})
+    assert d.ground_motion.times.tolist() == pytest.approx([0.6, 1.6])
