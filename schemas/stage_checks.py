@@ -57,3 +57,17 @@ def stage_problems(scene: Any, p: Problems, joint_material: Callable[[str, str |
             for k, jp in enumerate(st.water.joint_pressures):
                 joint_material(f"{loc}.water.joint_pressures[{k}].joint_material",
                                jp.joint_material)
+
+
+def refuse_stages(scene: Any, analysis: str) -> None:
+    """SceneError at `stages` (of a Scene or a BuildResult) for an analysis of one model (a
+    factor-of-safety search, a critical seismic coefficient, a sweep): a staged scene's
+    model is its rock before any stage, excavations still in place, which is not what its
+    stages describe."""
+    if getattr(scene, "stages", None):
+        from schemas.errors import SceneError
+
+        raise SceneError([{"loc": "stages", "msg": (
+            f"{analysis} analyses one model, and a staged scene's is its rock before any "
+            "stage (excavations still in place): run the stages (process 'simulation', "
+            "polydda run), or write the scene as it stands at the stage to analyse")}])

@@ -381,3 +381,20 @@ def test_stage_settings_resolve_in_order() -> None:
     assert west in b.fixed and west not in c.fixed
     assert not b.removed and c.removed == d.removed == frozenset({1 - west})
     assert d.ground_motion.times.tolist() == pytest.approx([0.6, 1.6])
+
+
+def test_analyses_of_one_model_refuse_a_staged_scene(tmp_path: Path,
+                                                     capsys: pytest.CaptureFixture[str]
+                                                     ) -> None:
+    """A factor-of-safety search of a staged scene would analyse its rock before any stage:
+    the command line exits 2 and the service answers 422, both naming `stages`."""
+    path = tmp_path / "s.json"
+    path.write_text(json.dumps(roof_wedge_scene()))
+    assert main(["fos", str(path)]) == 2
+    assert "stages: the factor-of-safety search analyses one model" in capsys.readouterr().err
+    from tests.service_helpers import make_client
+
+    with make_client(tmp_path / "data") as client:
+        r = client.post("/processes/factor-of-safety/execution",
+                        json={"inputs": {"scene": roof_wedge_scene()}})
+        assert r.status_code == 422 and r.json()["errors"][0]["loc"] == "stages"

@@ -191,7 +191,8 @@ def run_stages(full: Model, stages: Sequence[Stage], recorder: Recorder | None =
             front.keep = np.array(ledger.blocks, np.int64)
             names = [b.name or f"bolt{i + 1}" for i, b in enumerate(full.bolts)]
             front.bolt_rows = np.array([names.index(b) for b in ledger.bolts], np.int64)
-        result = run(model, recorder=front, progress=progress, should_stop=should_stop,
+        result = run(model, recorder=front, progress=_whole(progress, stages[-1].end_time),
+                     should_stop=should_stop,
                      scene_json=scene_json, resume_from=state)
         state = result.state
         rec.end_step, rec.status = state.step, result.status
@@ -214,6 +215,14 @@ def run_stages(full: Model, stages: Sequence[Stage], recorder: Recorder | None =
     if front is not None:
         front.close(result.status, result.message, result.summary)
     return result
+
+
+def _whole(progress: Callable[[Progress], None] | None, end: float
+           ) -> Callable[[Progress], None] | None:
+    """A stage's progress as progress through the whole run (its duration the stages')."""
+    if progress is None:
+        return None
+    return lambda p: progress(Progress(p.step, p.time, end, p.dt))
 
 
 def _full_blocks(full: Model, ledger: Ledger, last: list[dict[str, Any]],

@@ -303,6 +303,13 @@ def _run_built(args: argparse.Namespace, built: Any, writer: ResultWriter,
                      scene_json=scene_text, checkpoints=checkpoints, resume=resume)
 
 
+def _one_model(built: BuildResult, analysis: str) -> None:
+    """SceneError (exit 2) when an analysis of one model is asked of a staged scene."""
+    from schemas.stage_checks import refuse_stages
+
+    refuse_stages(built, analysis)
+
+
 def _note_compilation() -> None:
     """Say why the first step of the first run on a machine takes a while."""
     from engine import kernels_cached
@@ -330,6 +337,7 @@ def _trial_printer(args: argparse.Namespace, factor: str) -> Callable[[TrialRun]
 def cmd_fos(args: argparse.Namespace) -> int:
     """Factor of safety by strength reduction (bisection on tan φ / F)."""
     built = _load(args.scene)
+    _one_model(built, "the factor-of-safety search")
     note = _trial_printer(args, "F = {:.4f}")
     result = factor_of_safety(built.model, fos_controls(built), progress=note)
     doc = fos_document(result, built)
@@ -347,6 +355,7 @@ def cmd_fos(args: argparse.Namespace) -> int:
 def cmd_seismic(args: argparse.Namespace) -> int:
     """Critical (yield) seismic coefficient by bisection on kh."""
     built = _load(args.scene)
+    _one_model(built, "the critical seismic coefficient search")
     note = _trial_printer(args, "kh = {:.5f}")
     result = critical_seismic_coefficient(built.model, seismic_controls(built), progress=note)
     doc = seismic_document(result, built)
@@ -420,7 +429,7 @@ def cmd_sweep(args: argparse.Namespace) -> int:
     from service.sweep import run_sweep, spec_of_scene
 
     scene = json.loads(Path(args.scene).read_text(encoding="utf-8"))
-    build_model(scene)  # the scene must be valid before any realisation
+    _one_model(build_model(Path(args.scene)), "a sweep")  # valid before any realisation
     section = _sweep_options(args, scene)
     if section is None:
         print("polydda sweep: give --friction-mean and --friction-sd, or --parameter, or the "

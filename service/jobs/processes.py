@@ -193,9 +193,20 @@ def _sweep(build: BuildResult | None, scene_text: str, job_dir: Path,
     return Outcome("successful", f"{spec.mode}: {pof} realisations")
 
 
+def _single_model_check(analysis: str) -> Callable[[Any], None]:
+    """The check of a process that analyses one model: no stages (schemas.stage_checks)."""
+    def check(scene: Any) -> None:
+        from schemas.stage_checks import refuse_stages
+
+        refuse_stages(scene, analysis)
+    return check
+
+
 def _sweep_check(scene: Any) -> None:
+    from schemas.stage_checks import refuse_stages
     from service.sweep import spec_of_scene
 
+    refuse_stages(scene, "a sweep")
     spec_of_scene(scene.model_dump(mode="json", exclude_none=True))
 
 
@@ -218,13 +229,14 @@ PROCESSES: dict[str, Process] = {p.id: p for p in (
             "at which the watched blocks start to accelerate (the scene's "
             "analysis.factor_of_safety: watched blocks, joint materials, times).",
             ("fos.json",), "fos.json", "factor_of_safety", "factor_of_safety",
-            _factor_of_safety),
+            _factor_of_safety, check=_single_model_check("the factor-of-safety search")),
     Process("critical-seismic-coefficient", "Critical seismic coefficient",
             "Find by bisection on the horizontal pseudo-static coefficient kh (the scene's "
             "seismic azimuth and kv, full joint strengths) the kh at which the watched blocks "
             "start to accelerate (the scene's analysis.critical_seismic_coefficient).",
             ("seismic.json",), "seismic.json", "critical_seismic_coefficient",
-            "critical_seismic_coefficient", _critical_seismic),
+            "critical_seismic_coefficient", _critical_seismic,
+            check=_single_model_check("the critical seismic coefficient search")),
     Process("block-cutting", "Block cutting",
             "Cut the domain by the joints and list the blocks (volume, centroid, vertices, "
             "faces); nothing is run.",
