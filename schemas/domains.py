@@ -156,6 +156,8 @@ def read_esri_ascii(text: str) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         if need not in head:
             raise ValueError(f"the ESRI ASCII grid's header has no '{need}'")
     nx, ny, cs = int(head["ncols"]), int(head["nrows"]), head["cellsize"]
+    if not any(ln.strip() for ln in lines[k:]):
+        raise ValueError("the grid has no values after its header")
     values = np.loadtxt(io.StringIO("\n".join(lines[k:])), dtype=float, ndmin=2)
     if values.shape != (ny, nx):
         raise ValueError(f"the grid has {values.shape[0]} rows of {values.shape[1]} values; "
@@ -174,6 +176,8 @@ def read_xyz_csv(text: str) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     if rows and not rows[0].replace(",", " ").split()[0].lstrip("+-").replace(".", "", 1) \
             .replace("e", "", 1).replace("E", "", 1).isdigit():
         rows = rows[1:]
+    if not rows:
+        raise ValueError("the file has no rows 'x, y, z'")
     a = np.loadtxt(io.StringIO("\n".join(r.replace(",", " ") for r in rows)), ndmin=2)
     if a.shape[1] != 3:
         raise ValueError(f"rows must be 'x, y, z'; got {a.shape[1]} values per row")
@@ -181,8 +185,10 @@ def read_xyz_csv(text: str) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     y, iy = np.unique(a[:, 1], return_inverse=True)
     z = np.full((len(y), len(x)), np.nan)
     z[iy, ix] = a[:, 2]
+    if len(x) < 2 or len(y) < 2:
+        raise ValueError("the grid needs at least 2 x 2 nodes")
     steps = np.concatenate([np.diff(x) / np.diff(x).mean(), np.diff(y) / np.diff(y).mean()])
-    if len(x) > 1 and len(y) > 1 and np.abs(steps - 1).max() > 1e-6:
+    if np.abs(steps - 1).max() > 1e-6:
         raise ValueError("the points do not lie on a regular grid (uneven spacing)")
     return x, y, z
 
@@ -334,9 +340,10 @@ def _grid(spec: TerrainSpec, loc: str, base_dir: Path | None, p: Problems
         reader = read_esri_ascii if src.fmt == "asc" else read_xyz_csv
         if src.fmt not in ("asc", "csv"):
             raise ValueError(f"unknown format '{src.fmt}' (asc, csv, stl, obj or ply)")
-        return reader(src.text), src.field, src.name
-    except ValueError as exc:
-        p.add(src.field, f"{src.name}: {exc}")
+        with np.errstate(all="ignore"):
+            return reader(src.text), src.field, src.name
+    except (ValueError, IndexError) as exc:  # what numpy's text reader raises on bad text
+        p.add(src.field, f"{src.name}: not a readable {src.fmt} grid ({exc})")
         return None, src.field, src.name
 
 

@@ -97,3 +97,28 @@ def test_elastic_blocks_through_an_excavation() -> None:
     assert res.state.stress.shape == (len(build.model.blocks) - 1, 6)
     assert res.summary["removed_energy"] > 0
     assert res.summary["energy"]["created_ratio"] < 1e-3
+
+
+def test_removing_a_falling_block_books_its_kinetic_energy() -> None:
+    """A 1 m cube falls freely from rest; a stage at t = 0.2 s removes it in flight. Its
+    kinetic energy then, ½ m (g t)² = ½ 2600 (9.81 · 0.2)² = 5,004.5 J, leaves as
+    removed_energy (1e-6): the work gravity did on it stays booked, nothing is created."""
+    from engine.geometry.shapes import box
+    from engine.model import AnalysisControls, Block, Model
+
+    model = Model(
+        blocks=[Block(box([-3, -3, -1], [3, 3, 0]), "base", fixed=True),
+                Block(box([0, 0, 5], [1, 1, 6]), "falling"),
+                Block(box([-2, -2, 0], [-1, -1, 1]), "resting")],
+        controls=AnalysisControls(duration=0.3, time_step=1e-3, penalty=1e10))
+    stages = [Stage("fall", 0.2, fixed=frozenset({0})),
+              Stage("dig", 0.3, removed=frozenset({1}), fixed=frozenset({0}))]
+    res = run_stages(model, stages)
+    assert res.status == "completed", res.message
+    ke = 0.5 * 2600 * (G * 0.2) ** 2
+    assert res.summary["stages"][1]["removed_energy"] == pytest.approx(ke, rel=1e-6)
+    e = res.state.energies
+    assert e["gravity_work"] == pytest.approx(ke, rel=1e-3)  # the resting cube adds ~0
+    assert res.summary["energy"]["created_ratio"] < 1e-6
+    assert res.summary["blocks"][1]["removed"] and res.summary["blocks"][1][
+        "removed_in_stage"] == "dig"

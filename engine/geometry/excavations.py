@@ -180,6 +180,9 @@ def _triangles(poly: np.ndarray) -> list[np.ndarray]:
         else:
             raise ValueError("the section polygon is not simple (it crosses itself)")
     out.append(p[idx])
+    scale = float(np.ptp(p, axis=0).max())
+    if not scale > 0 or any(abs(cross(t[0], t[1], t[2])) <= 1e-12 * scale**2 for t in out):
+        raise ValueError("the section polygon has no area (repeated or collinear corners)")
     return out
 
 
