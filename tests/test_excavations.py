@@ -398,3 +398,22 @@ def test_analyses_of_one_model_refuse_a_staged_scene(tmp_path: Path,
         r = client.post("/processes/factor-of-safety/execution",
                         json={"inputs": {"scene": roof_wedge_scene()}})
         assert r.status_code == 422 and r.json()["errors"][0]["loc"] == "stages"
+
+
+def test_an_excavation_cut_before_the_joints() -> None:
+    """`cut: before_joints`: the domain never had the cavern's rock (12 × 14 × 18 m box less
+    6 × 3 × 12 m), the joints then cut the wedge straight out of the roof; a stage cannot
+    dig it again."""
+    scene = roof_wedge_scene()
+    scene["excavations"][0]["cut"] = "before_joints"
+    scene["stages"] = []
+    build = build_model(scene)
+    assert build.excavated == [None] * len(build.model.blocks)
+    total = sum(b.polyhedron.volume for b in build.model.blocks)
+    assert total == pytest.approx(12 * 12 * 14 - 6 * 3 * 12, rel=1e-12)
+    assert build.model.blocks[_wedge(build)].polyhedron.volume == pytest.approx(
+        WEDGE_VOLUME, rel=1e-9)
+    scene["stages"] = [{"name": "dig", "duration": 0.1, "excavate": ["cavern"]}]
+    problems = _problems(scene)
+    assert any(p["loc"] == "stages[0].excavate[0]" and "before the joints" in p["msg"]
+               for p in problems), problems
