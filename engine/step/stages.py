@@ -7,7 +7,7 @@ stage's bolts, water, joint materials, seismic load, ground motion and fixed blo
 carries the :class:`State` over (:func:`carry_state`): the kept blocks' rows, the contacts
 between kept blocks, the kept bolts' states. Blocks are referred to by their index in the
 full model throughout; the recorder sees every frame at full size
-(:class:`FullFrames`), removed blocks frozen where they were removed.
+(:class:`engine.step.staged_run.FullFrames`), removed blocks frozen where they were removed.
 
 Energy: what leaves with a removed block (its kinetic and strain energy, its contacts'
 springs, its fixed points') and with a removed bolt (its spring) is booked as
@@ -15,7 +15,8 @@ springs, its fixed points') and with a removed bolt (its spring) is booked as
 energy, and the watchdog sees none. The contact penalty is the full model's throughout.
 
 A run through its stages equals, bit for bit, the same run stopped at a stage's end and
-resumed from its checkpoint (:func:`save_checkpoint`, :func:`load_checkpoint`).
+resumed from its checkpoint (:mod:`engine.step.staged_run`: `run_stages`,
+`save_checkpoint`, `load_checkpoint`).
 """
 
 from __future__ import annotations
@@ -43,15 +44,15 @@ class Stage:
 
     `removed`: full-model blocks gone by this stage (those not gone before are removed as
     it starts); `bolts`: names of the full model's bolts acting in it (a bolt not acting
-    before is installed as it starts); `fixed`: full-model blocks held fixed. `end_time`
-    (s) is where the stage ends on the run's clock.
+    before is installed as it starts); `fixed`: full-model blocks held fixed (None: those
+    the full model fixes). `end_time` (s) is where the stage ends on the run's clock.
     """
 
     name: str
     end_time: float
     removed: frozenset[int] = frozenset()
     bolts: tuple[str, ...] = ()
-    fixed: frozenset[int] = frozenset()
+    fixed: frozenset[int] | None = None
     water: Water | None = None
     joint_materials: tuple[JointMaterial, ...] | None = None
     seismic: SeismicLoad | None = None
@@ -70,6 +71,13 @@ class Ledger:
     bolts: list[str] = field(default_factory=list)
 
 
+def fixed_blocks(full: Model, stage: Stage) -> frozenset[int]:
+    """The full-model blocks held fixed in `stage`."""
+    if stage.fixed is not None:
+        return stage.fixed
+    return frozenset(b for b, blk in enumerate(full.blocks) if blk.fixed)
+
+
 def _bolt_name(model: Model, k: int) -> str:
     return model.bolts[k].name or f"bolt{k + 1}"
 
@@ -80,7 +88,8 @@ def stage_model(full: Model, stage: Stage, ledger: Ledger) -> tuple[Model, np.nd
     model's, so the contact springs keep their stiffness across stages."""
     keep = np.array([b for b in range(len(full.blocks)) if b not in stage.removed], np.int64)
     new = {int(b): k for k, b in enumerate(keep)}
-    blocks = [dataclasses.replace(full.blocks[b], fixed=b in stage.fixed) for b in keep]
+    fixed = fixed_blocks(full, stage)
+    blocks = [dataclasses.replace(full.blocks[b], fixed=b in fixed) for b in keep]
     bolts = []
     for k, bolt in enumerate(full.bolts):
         name = _bolt_name(full, k)
@@ -186,7 +195,8 @@ def carry_state(full: Model, old: BlockSystem, state: State, old_keep: np.ndarra
     model, keep = stage_model(full, stage, ledger)
     stay = np.isin(old_keep, keep)
     rows = np.flatnonzero(stay)
-    now_fixed = np.array([b in stage.fixed for b in old_keep]) & ~old.fixed
+    fixed = fixed_blocks(full, stage)
+    now_fixed = np.array([b in fixed for b in old_keep], bool) & ~old.fixed
     mem = state.memory
     kept_contact = stay[mem.key[:, 0]] & stay[mem.key[:, 2]]
     names = [b.name for b in model.bolts]
