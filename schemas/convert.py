@@ -43,6 +43,7 @@ from engine.model import (
     SeismicCoefficientControls,
     StrengthReductionControls,
 )
+from engine.step.stages import Stage
 from engine.tolerances import DEFAULT_TOLERANCES
 from schemas.errors import Problems, SceneError, fmt_num, fmt_point
 from schemas.scene import (
@@ -80,6 +81,13 @@ class BuildResult:
     warnings: list[str] = field(default_factory=list)
     factor_of_safety: StrengthReductionControls | None = None
     seismic_coefficient: SeismicCoefficientControls | None = None
+    #: a staged run's stages (empty: one run of the model as it is)
+    stages: list[Stage] = field(default_factory=list)
+    #: the excavation each block lies in (None: rock that stays), by block index
+    excavated: list[str | None] = field(default_factory=list)
+    #: the scene's excavations in order (excavation k's surface carries face tag
+    #: engine.geometry.excavations.EXCAVATION_TAG_BASE + k)
+    excavation_names: list[str] = field(default_factory=list)
 
     def block_index(self, name: str) -> int:
         """Index of the block called `name` (KeyError if none)."""
@@ -183,43 +191,85 @@ def _name_joints(text: str, scene: Scene) -> str:
                   text)
 
 
-def _cut_domain(scene: Scene, p: Problems, warnings: list[str]) -> list[Polyhedron]:
-    """The blocks cut from the domain, sorted by centroid z, y, x (empty if no domain)."""
+def _domain(scene: Scene, p: Problems, base_dir: Path | None
+            ) -> tuple[Polyhedron | None, list[Polyhedron] | None]:
+    """The domain's closed surface and, for a terrain, its convex columns."""
+    from schemas.domains import mesh_domain, slope_domain, terrain_domain
+
+    d = scene.domain
+    if d.box is not None:
+        return box_polyhedron(d.box), None
+    if d.slope is not None:
+        return slope_domain(d.slope, "domain.slope", p), None
+    if d.terrain is not None:
+        t = terrain_domain(d.terrain, "domain.terrain", base_dir, p)
+        return (None, None) if t is None else (t.domain, list(t.columns))
+    if d.mesh is not None:
+        return mesh_domain(d.mesh, "domain.mesh", base_dir, p), None
+    problems = polyhedron_problems(np.asarray(d.polyhedron.vertices, float),
+                                   d.polyhedron.faces)
+    for msg in problems:
+        p.add(_geometry_loc("domain.polyhedron", msg), msg)
+    if problems:
+        return None, None
+    return Polyhedron.from_faces(d.polyhedron.vertices, d.polyhedron.faces), None
+
+
+def _cut_domain(scene: Scene, p: Problems, warnings: list[str], base_dir: Path | None = None
+                ) -> tuple[list[Polyhedron], list[str | None]]:
+    """The blocks cut from the domain, sorted by centroid z, y, x (empty if no domain), and
+    the excavation each lies in (None: rock that stays)."""
+    from engine.geometry.cutting.cut import cut_blocks
+    from engine.geometry.excavations import _tiles
+    from schemas.stage_convert import excavate_after, excavate_before, excavation_solids
+
     d = scene.domain
     if d is None:
-        return []
-    if d.box is not None:
-        domain = box_polyhedron(d.box)
-    else:
-        problems = polyhedron_problems(np.asarray(d.polyhedron.vertices, float),
-                                       d.polyhedron.faces)
-        for msg in problems:
-            p.add(_geometry_loc("domain.polyhedron", msg), msg)
-        if problems:
-            return []
-        domain = Polyhedron.from_faces(d.polyhedron.vertices, d.polyhedron.faces)
-    if not scene.joints:
-        return [domain]
-    planes = _joint_planes(scene, domain, p)
-    if p:
-        return []
-    from engine.geometry.cutting.cut import cut_blocks
+        return [], []
+    domain, tiles = _domain(scene, p, base_dir)
+    solids = excavation_solids(scene, p)
+    if domain is None or p:
+        return [], []
+    pieces = excavate_before(scene, solids, domain, p) if scene.excavations else [domain]
+    if len(pieces) != 1 or pieces[0] is not domain:
+        tiles = None
+    planes: list[JointPlane] = []
+    if not scene.joints:  # one block per piece, a concave one with its convex pieces
+        from engine.geometry.cutting.cut import convex_decomposition
 
-    result = cut_blocks(domain, planes, min_block_volume=d.min_block_volume,
-                        min_block_width=d.min_block_width)
-    for w in result.warnings:
-        w = _name_joints(w, scene)
-        if w not in warnings:
-            warnings.append(w)
-    blocks = list(result.blocks)
+        blocks = [q if q.is_convex or q.pieces else
+                  cut_blocks(q, [], min_block_volume=0.0, min_block_width=0.0,
+                             tiles=tiles).blocks[0] if tiles is not None else
+                  convex_decomposition(q) for q in pieces]
+    else:
+        planes = _joint_planes(scene, domain, p)
+        if p:
+            return [], []
+        blocks = []
+        for piece in pieces:
+            result = cut_blocks(piece, planes, min_block_volume=d.min_block_volume,
+                                min_block_width=d.min_block_width,
+                                tiles=tiles if tiles is not None else
+                                (_tiles(piece) if piece.pieces else None))
+            for w in result.warnings:
+                w = _name_joints(w, scene)
+                if w not in warnings:
+                    warnings.append(w)
+            blocks.extend(result.blocks)
     if not blocks:
-        p.add("joints", "cutting the domain left no blocks")
-        return []
+        p.add("joints" if scene.joints else "domain", "cutting the domain left no blocks")
+        return [], []
+    owner: list[str | None] = [None] * len(blocks)
+    if scene.excavations:
+        blocks, owner = excavate_after(scene, solids, blocks, domain, planes, p)
+        used = {int(t) for b in blocks for t in b.face_tags}
+        warnings[:] = [w for w in warnings if not any(
+            w.startswith(f"joints[{k}] ") and k in used for k in range(len(scene.joints)))]
     scale = float(np.ptp(domain.bounds, axis=0).max())
     grid = DEFAULT_TOLERANCES.lengths(scale).on_plane * 1e3
     c = np.array([b.centroid for b in blocks]) / grid
     order = np.lexsort((np.round(c[:, 0]), np.round(c[:, 1]), np.round(c[:, 2])))
-    return [blocks[i] for i in order]
+    return [blocks[i] for i in order], [owner[i] for i in order]
 
 
 def _explicit_blocks(scene: Scene, p: Problems) -> list[Polyhedron | None]:
@@ -552,11 +602,18 @@ def _water(scene: Scene, jmat_names: list[str]) -> Water | None:
 # --------------------------------------------------------------------------- build
 
 
-def build_model(scene: Scene | str | Path | dict[str, Any]) -> BuildResult:
+def build_model(scene: Scene | str | Path | dict[str, Any],
+                base_dir: str | Path | None = None) -> BuildResult:
     """The engine Model of a scene (or of a path / JSON text / dict, loaded first).
 
-    Raises SceneError listing every problem found.
+    Files the scene names (a terrain grid, a mesh) are read from `base_dir` (default: the
+    scene file's folder when `scene` is a path; none for a dict or JSON text: such a scene
+    must give them inline). Raises SceneError listing every problem found.
     """
+    if base_dir is None and isinstance(scene, Path | str) and not str(scene).lstrip() \
+            .startswith(("{", "[")):
+        base_dir = Path(scene).resolve().parent
+    base = None if base_dir is None else Path(base_dir)
     if not isinstance(scene, Scene):
         scene = load_scene(scene)
     else:
@@ -579,7 +636,7 @@ def build_model(scene: Scene | str | Path | dict[str, Any]) -> BuildResult:
         return mat_names.index(name or scene.default_material)
 
     # geometry
-    cut = _cut_domain(scene, p, warnings)
+    cut, owner = _cut_domain(scene, p, warnings, base)
     explicit = _explicit_blocks(scene, p)
     p.raise_if_any()
     prefix = scene.domain.name_prefix if scene.domain is not None else "B"
@@ -624,7 +681,10 @@ def build_model(scene: Scene | str | Path | dict[str, Any]) -> BuildResult:
         i = find.one(pl.block, point, f"boundary.point_loads[{k}]", p)
         if i is not None:
             loads.append(PointLoad(block=i, point=point, force=np.asarray(pl.force, float)))
-    bolts = _bolts(scene, find, p)
+    find_bolts = _Locator(polys, names, scale)  # bolts never hold rock to be dug out
+    dug = np.array([k < len(owner) and owner[k] is not None for k in range(len(polys))])
+    find_bolts.lo[dug], find_bolts.hi[dug] = np.inf, -np.inf
+    bolts = _bolts(scene, find_bolts, p)
     pairs: dict[tuple[int, int], int] = {}
     for k, pair in enumerate(scene.block_pairs):
         found = []
@@ -724,8 +784,10 @@ def build_model(scene: Scene | str | Path | dict[str, Any]) -> BuildResult:
             scene.ground_motion.scale * np.asarray(scene.ground_motion.acceleration, float)),
         controls=controls,
     )
+    stages = _stages(scene, model, owner, find, jmat_names)
     return BuildResult(
-        model=model,
+        model=model, stages=stages, excavated=owner + [None] * len(scene.blocks),
+        excavation_names=[e.name for e in scene.excavations],
         block_names=names,
         block_sources=["cut"] * len(cut) + ["explicit"] * len(scene.blocks),
         material_names=mat_names,
@@ -735,6 +797,24 @@ def build_model(scene: Scene | str | Path | dict[str, Any]) -> BuildResult:
         factor_of_safety=fos,
         seismic_coefficient=kc,
     )
+
+
+def _stages(scene: Scene, model: Model, owner: list[str | None], find: _Locator,
+            jmat_names: list[str]) -> list[Stage]:
+    """The scene's stages resolved on the model (SceneError naming the field)."""
+    if not scene.stages:
+        return []
+    from schemas.stage_convert import resolve_stages, staged_controls
+
+    p = Problems()
+    stages = resolve_stages(
+        scene, model, owner + [None] * len(scene.blocks),
+        lambda sel, loc: find.select(sel, loc, p),
+        lambda spec: _water(scene.model_copy(update={"water": spec}), jmat_names),
+        jmat_names)
+    p.raise_if_any()
+    staged_controls(model, stages)
+    return stages
 
 
 # --------------------------------------------------------------------------- kinematics

@@ -33,6 +33,7 @@ from engine.model import (
     SeismicCoefficientControls,
     StrengthReductionControls,
 )
+from schemas.domains import MeshSpec, SlopeSpec, TerrainSpec
 from schemas.errors import (
     Problems,
     SceneError,
@@ -41,6 +42,7 @@ from schemas.errors import (
     format_loc,
     from_validation_error,
 )
+from schemas.stages import ExcavationSpec, StageSpec
 
 #: version of the scene format; a scene may state it as ``"schema_version"``
 SCHEMA_VERSION = "1.0"
@@ -171,7 +173,8 @@ class PolyhedronSpec(_Model):
 
 
 class DomainSpec(_Model):
-    """The rock mass that the joints cut into blocks: a `box` or a `polyhedron`.
+    """The rock mass that the joints cut into blocks: a `box`, a `polyhedron`, a `slope`
+    (section profile), a `terrain` (ground surface) or a `mesh` (closed mesh file).
 
     Cut blocks are named `name_prefix` + 1, 2, ... in order of centroid z, then y, then x
     (lowest first).
@@ -179,6 +182,9 @@ class DomainSpec(_Model):
 
     box: BoxSpec | None = None
     polyhedron: PolyhedronSpec | None = None
+    slope: SlopeSpec | None = None
+    terrain: TerrainSpec | None = None
+    mesh: MeshSpec | None = None
     material: Name | None = Field(None, description="material name (default material if omitted)")
     name_prefix: Name = "B"
     min_block_volume: NonNegative | None = Field(
@@ -195,7 +201,7 @@ class DomainSpec(_Model):
 
     @model_validator(mode="after")
     def _one_shape(self) -> DomainSpec:
-        _exactly_one(self, ("box", "polyhedron"))
+        _exactly_one(self, ("box", "polyhedron", "slope", "terrain", "mesh"))
         return self
 
 
@@ -812,6 +818,13 @@ DEFAULT_MATERIAL_NAME = "rock"
 DEFAULT_JOINT_MATERIAL_NAME = "joint"
 
 
+StageSpec.model_rebuild(_types_namespace={
+    "BoxSpec": BoxSpec, "WaterSpec": WaterSpec, "JointMaterialSpec": JointMaterialSpec,
+    "SeismicSpec": SeismicSpec, "GroundMotionSpec": GroundMotionSpec, "Target": Target,
+    "Name": Name})
+ExcavationSpec.model_rebuild()
+
+
 class Scene(_Model):
     """A DDA scene: materials, blocks (cut from a domain by joints, and/or explicit),
     boundary conditions, gravity and the analysis to run."""
@@ -853,6 +866,11 @@ class Scene(_Model):
     sweep: MonteCarloSpec | None = Field(
         None, description="a sweep or Monte Carlo analysis of the scene's parameters "
                           "(process 'sweep'; not used by runs)")
+    excavations: list[ExcavationSpec] = Field(
+        default_factory=list, description="tunnels, caverns and benches cut from the domain")
+    stages: list[StageSpec] = Field(
+        default_factory=list, description="a staged run: what changes at each stage's start "
+                                          "(analysis.duration is then their sum)")
 
     @model_validator(mode="after")
     def _defaults(self) -> Scene:
@@ -899,10 +917,29 @@ def _domain_bounds(scene: Scene) -> tuple[list[float], list[float]] | None:
         return None
     if d.box is not None:
         return list(d.box.min), list(d.box.max)
+    if d.slope is not None:
+        return _slope_bounds(d.slope)
+    if d.polyhedron is None:
+        return None  # a terrain or mesh: known once its file is read
     if d.polyhedron.vertices:
         vs = d.polyhedron.vertices
         return [min(v[i] for v in vs) for i in range(3)], [max(v[i] for v in vs) for i in range(3)]
     return None
+
+
+def _slope_bounds(sl: Any) -> tuple[list[float], list[float]]:
+    """The bounding box of a slope domain, from its profile and extrusion."""
+    a = math.radians(sl.dip_direction)
+    across = (-math.sin(a), -math.cos(a))
+    along = (-across[1], across[0])
+    s_vals = [pt[0] for pt in sl.profile]
+    xs, ys = [], []
+    for sv in (min(s_vals), max(s_vals)):
+        for t in (0.0, sl.width):
+            xs.append(sl.origin[0] + sv * across[0] + t * along[0])
+            ys.append(sl.origin[1] + sv * across[1] + t * along[1])
+    zs = [pt[1] for pt in sl.profile] + [sl.base]
+    return [min(xs), min(ys), min(zs)], [max(xs), max(ys), max(zs)]
 
 
 def _domain_diagonal(scene: Scene) -> float | None:
@@ -1043,6 +1080,10 @@ def scene_problems(scene: Scene) -> list[dict[str, str]]:
             joint_material(f"water.joint_pressures[{k}].joint_material", jp.joint_material)
     if scene.sweep is not None:
         _sweep_problems(scene, p, joint_material)
+    if scene.excavations or scene.stages:
+        from schemas.stage_checks import stage_problems
+
+        stage_problems(scene, p, joint_material)
     if scene.analysis.type == "critical_seismic_coefficient" and scene.seismic is None:
         p.add("seismic", "the critical_seismic_coefficient analysis needs 'seismic' with the "
               "azimuth the horizontal force points to (and kv, if any)")
@@ -1067,7 +1108,8 @@ def scene_problems(scene: Scene) -> list[dict[str, str]]:
         p.add("bolt_patterns" if scene.bolt_patterns else "bolts",
               f"{nb:,} bolts in all; the limit is {Limits.max_bolts:,}")
     a = scene.analysis
-    steps = a.duration / a.time_step
+    duration = sum(st.duration for st in scene.stages) if scene.stages else a.duration
+    steps = duration / a.time_step
     if steps > Limits.max_steps:
         p.add("analysis.time_step",
               f"duration / time_step = {steps:.3g} steps; the limit is {Limits.max_steps:,} "

@@ -35,6 +35,19 @@ def _example(name: str, **controls: Any) -> Callable[[], Model]:
     return build
 
 
+def _staged(name: str, durations: list[float]) -> Callable[[], Any]:
+    """A staged example with its stages shortened to `durations` (s): (model, stages)."""
+    def build() -> Any:
+        from schemas.convert import build_model
+
+        scene = json.loads((ROOT / "examples" / f"{name}.json").read_text())
+        for stage, duration in zip(scene["stages"], durations, strict=True):
+            stage["duration"] = duration
+        built = build_model(scene, base_dir=ROOT / "examples")
+        return built.model, built.stages
+    return build
+
+
 def _incline(phi: float, **controls: Any) -> Callable[[], Model]:
     def build() -> Model:
         from tests.test_simulation import incline_model
@@ -109,11 +122,18 @@ CASES: dict[str, Callable[[], Model]] = {
     "pile_100": _pile,
     "rock_mass_5m": _rock_mass(5.0, 0.02),
     "rock_mass_2.5m": _rock_mass(2.5, 0.005),
+    "benched_slope": _example("benched_slope", duration=0.02),
+    "terrain_slope": _example("terrain_slope", duration=0.01),
+}
+
+#: staged cases: name -> (model, stages) builder
+STAGED: dict[str, Callable[[], Any]] = {
+    "tunnel_staged": _staged("tunnel_staged", [0.02, 0.04, 0.02]),
 }
 
 
 #: every digest: the runs and a factor-of-safety search
-NAMES = [*CASES, "fos_incline"]
+NAMES = [*CASES, *STAGED, "fos_incline"]
 
 
 class _Digest:
@@ -158,10 +178,17 @@ def digest(name: str) -> dict[str, Any]:
     """The digest of case `name`: status, steps, per-step series, final state."""
     if name == "fos_incline":
         return _fos_incline()
-    model = CASES[name]()
-    model.controls = dataclasses.replace(model.controls, record_interval=1)
     rec = _Digest()
-    res = run(model, recorder=rec)
+    if name in STAGED:
+        from engine.step.staged_run import run_stages
+
+        model, stages = STAGED[name]()
+        model.controls = dataclasses.replace(model.controls, record_interval=1)
+        res = run_stages(model, stages, recorder=rec)
+    else:
+        model = CASES[name]()
+        model.controls = dataclasses.replace(model.controls, record_interval=1)
+        res = run(model, recorder=rec)
     f = rec.last
     return {
         "status": res.status, "message": res.message, "steps": res.steps,

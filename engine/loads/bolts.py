@@ -54,13 +54,18 @@ class Bolt:
     shear_capacity: float | None = None
     rupture_displacement: float = float("inf")
     name: str = ""
+    #: installed mid-run (a stage): the length (m) and the anchor-minus-head vector (m)
+    #: the bolt had when installed, unstressed but for its pretension (None: at t = 0)
+    installed_length: float | None = None
+    installed_span: tuple[float, float, float] | None = None
 
 
 @dataclass(frozen=True)
 class BoltSet:
     """The bolts of a run as arrays (b bolts): head block, anchor block (-1: ground), ends
     at installation `(b, 3)` m, installed length `(b,)` m, stiffnesses N/m, pretension N,
-    capacities N, rupture displacements m (inf: none)."""
+    capacities N, rupture displacements m (inf: none); `span0 (b, 3)` m the anchor minus the
+    head at installation (the rupture displacement counts from it)."""
 
     bolts: tuple[Bolt, ...]
     block: np.ndarray
@@ -74,6 +79,7 @@ class BoltSet:
     capacity: np.ndarray
     shear_capacity: np.ndarray
     rupture: np.ndarray
+    span0: np.ndarray
 
     def __len__(self) -> int:
         return len(self.bolts)
@@ -84,6 +90,7 @@ def bolt_set(bolts: list[Bolt] | tuple[Bolt, ...]) -> BoltSet:
     head = np.array([b.head for b in bolts], float).reshape(-1, 3)
     anchor = np.array([b.anchor for b in bolts], float).reshape(-1, 3)
     cap = np.array([b.capacity for b in bolts], float)
+    length = np.linalg.norm(anchor - head, axis=1)
     for k, b in enumerate(bolts):
         if not (0 <= b.pretension <= b.capacity and b.axial_stiffness >= 0
                 and b.shear_stiffness >= 0 and b.rupture_displacement > 0):
@@ -92,13 +99,17 @@ def bolt_set(bolts: list[Bolt] | tuple[Bolt, ...]) -> BoltSet:
     return BoltSet(
         bolts=tuple(bolts), block=np.array([b.block for b in bolts], dtype=np.int64),
         anchor_block=np.array([b.anchor_block for b in bolts], dtype=np.int64),
-        head0=head, anchor0=anchor, length0=np.linalg.norm(anchor - head, axis=1),
+        head0=head, anchor0=anchor,
+        length0=np.array([length[k] if b.installed_length is None else b.installed_length
+                          for k, b in enumerate(bolts)], float),
         axial_stiffness=np.array([b.axial_stiffness for b in bolts], float),
         shear_stiffness=np.array([b.shear_stiffness for b in bolts], float),
         pretension=np.array([b.pretension for b in bolts], float), capacity=cap,
         shear_capacity=np.array([cap[k] if b.shear_capacity is None else b.shear_capacity
                                  for k, b in enumerate(bolts)], float),
-        rupture=np.array([b.rupture_displacement for b in bolts], float))
+        rupture=np.array([b.rupture_displacement for b in bolts], float),
+        span0=np.array([anchor[k] - head[k] if b.installed_span is None else b.installed_span
+                        for k, b in enumerate(bolts)], float).reshape(-1, 3))
 
 
 def _point(centroid: np.ndarray, affine: np.ndarray, c0: np.ndarray, b: int,
@@ -208,7 +219,7 @@ def update(bs: BoltSet, step: BoltStep, d: np.ndarray, c0: np.ndarray,
     over = mag > bs.shear_capacity
     s1 = s1 * np.where(over, bs.shear_capacity / np.maximum(mag, 1e-300), 1.0)[:, None]
     yielded |= over
-    moved = np.linalg.norm((anchor - head) - (bs.anchor0 - bs.head0), axis=1)
+    moved = np.linalg.norm((anchor - head) - bs.span0, axis=1)
     yielded |= status == YIELDED  # a bolt that yielded stays yielded
     status1 = np.where(status == BROKEN, BROKEN,
                        np.where(moved > bs.rupture, BROKEN,

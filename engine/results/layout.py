@@ -29,6 +29,12 @@ Layout (K steps, n blocks, V surface vertices, F faces, C contacts in all):
   `status (K,b)` (0 elastic, 1 yielded, 2 broken)
 - `/water` (only for a model with water in its joints): per step `resultant (K,n,3)` N, the
   resultant water force on each block
+- `/stages` (only for a staged run, S stages, written at its end): `names (S,)`,
+  `start_time`, `end_time (S,)` s, `start_step`, `end_step (S,)` (the steps of
+  `/steps/step` where each begins and ends), `status (S,)`, `removed_energy (S,)` J,
+  `removed_blocks (S,)` and `bolts (S,)` (JSON lists of the block names removed as the
+  stage starts and of the bolts acting in it). A removed block stays in `/history`
+  frozen where it was removed
 - `/VTKHDF`: VTKHDF 2.2 temporal PolyData for ParaView (block faces as polygons, points
   written per step, connectivity shared by all steps; point data `block_id`,
   `displacement`, `velocity`; cell data `block_id`, `face_tag`)

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import os
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 from matplotlib.backends.backend_agg import FigureCanvasAgg
@@ -28,6 +29,7 @@ ENERGY_LABELS = {
     "friction_dissipation": "friction dissipation",
     "numerical_dissipation": "dissipated by the DDA integrator",
     "damping_dissipation": "dissipated by contact damping",
+    "removed_energy": "removed with excavated blocks",
 }
 MAX_HISTORY_BLOCKS = 8
 #: snapshots name the free blocks when there are at most this many
@@ -51,9 +53,31 @@ def _title(result: Result, text: str) -> str:
     return text if status == "completed" else f"{text}  [run {status}]"
 
 
+def mark_stages(result: Result, *axes: Any) -> None:
+    """A staged run's stage starts on time axes: a dashed line and the stage's name at
+    each start after the first (nothing for a run without stages)."""
+    for st in result.stages()[1:]:
+        for k, ax in enumerate(axes):
+            ax.axvline(st["start_time"], color="grey", ls="--", lw=0.8)
+            if k == 0:
+                ax.annotate(st["name"], (st["start_time"], 1.0), xycoords=("data", "axes fraction"),
+                            xytext=(2, -10), textcoords="offset points", fontsize="small",
+                            color="dimgrey")
+
+
+def _removed(result: Result) -> set[int]:
+    """Blocks a staged run removed (excavated)."""
+    names = list(result.block_names)
+    return {names.index(n) for st in result.stages() for n in st["removed_blocks"]
+            if n in names}
+
+
 def default_blocks(result: Result, limit: int = MAX_HISTORY_BLOCKS) -> list[int]:
-    """Free blocks with the largest final displacement (at most `limit`), in index order."""
-    free = np.flatnonzero(~result.fixed)
+    """Free blocks with the largest final displacement (at most `limit`), in index order;
+    blocks a stage removed are left out."""
+    gone = np.zeros(len(result.fixed), bool)
+    gone[list(_removed(result))] = True
+    free = np.flatnonzero(~result.fixed & ~gone)
     if result.n_steps == 0 or len(free) <= limit:
         return free.tolist()
     disp = np.linalg.norm(result.centroids(-1)[free] - result.initial_centroids[free], axis=1)
@@ -81,6 +105,7 @@ def plot_histories(result: Result | PathLike, path: PathLike,
     ax_v.set_ylabel("velocity |v| (m/s)")
     ax_v.set_xlabel("time (s)")
     ax_u.set_title(_title(result, "Block centroid histories"))
+    mark_stages(result, ax_u, ax_v)
     for ax in (ax_u, ax_v):
         ax.grid(True, alpha=0.3)
     if idx:
@@ -120,6 +145,7 @@ def plot_energy(result: Result | PathLike, path: PathLike) -> Path:
     ax_r.set_ylabel("balance residual (J)")
     ax_r.set_xlabel("time (s)")
     ax.set_title(_title(result, "Energy balance"))
+    mark_stages(result, ax, ax_r)
     ax.grid(True, alpha=0.3)
     ax_r.grid(True, alpha=0.3)
     if ax.lines:  # beside the axes: it hides no curve
@@ -169,6 +195,7 @@ def plot_displacements(result: Result | PathLike, path: PathLike,
         axes[key].grid(True, alpha=0.3)
         axes[key].axhline(0.0, color="grey", lw=0.5)
     axes["z"].set_xlabel("time (s)")
+    mark_stages(result, axes["x"], axes["y"], axes["z"])
     axes["x"].set_title(_title(result, "Centroid displacement components"))
     if polar.lines:  # below the polar plot: |u| and trend/plunge of each block
         polar.legend(fontsize="small", loc="upper center", bbox_to_anchor=(0.5, -0.08),
@@ -205,6 +232,7 @@ def plot_bolts(result: Result | PathLike, path: PathLike) -> Path:
     ax_s.set_ylabel("shear force (kN)")
     ax_s.set_xlabel("time (s)")
     ax_n.set_title(_title(result, "Rock bolts"))
+    mark_stages(result, ax_n, ax_s)
     for ax in (ax_n, ax_s):
         ax.grid(True, alpha=0.3)
     if len(b["names"]) <= 12:
@@ -229,6 +257,7 @@ def plot_water(result: Result | PathLike, path: PathLike) -> Path:
     ax.set_ylabel("water force |U| (kN)")
     ax.set_xlabel("time (s)")
     ax.set_title(_title(result, "Resultant water force per block"))
+    mark_stages(result, ax)
     ax.grid(True, alpha=0.3)
     if ax.lines:
         ax.legend(fontsize="small", loc="best")
@@ -245,14 +274,18 @@ def plot_snapshot(result: Result | PathLike, step: int | None, path: PathLike, *
         with open_result(result) as r:
             return plot_snapshot(r, step, path, view=view)
     x0 = result.initial_vertices()
+    gone: set[int] = set()
     if step is None or result.n_steps == 0:
         xs, label = x0, "initial geometry"
     else:
         k = result.resolve_step(step)
         xs, label = result.vertices(k), f"t = {result.times[k]:.4g} s (step {result.steps[k]})"
+        gone = result.removed_at(float(result.times[k]))  # excavated by then: not drawn
     polys, values, colours = [], [], []
     initial = xs is x0
     for b, (x, x_0) in enumerate(zip(xs, x0, strict=True)):
+        if b in gone:
+            continue
         d = np.linalg.norm(x - x_0, axis=1)
         for face in result.faces(b):
             polys.append(x[face])
@@ -273,7 +306,8 @@ def plot_snapshot(result: Result | PathLike, step: int | None, path: PathLike, *
                  for b, v in zip(colours, vals, strict=True)]
     coll = Poly3DCollection(polys, facecolors=faces, edgecolors="k", linewidths=0.3)
     ax.add_collection3d(coll)
-    pts = np.concatenate(xs) if xs else np.zeros((1, 3))
+    shown = [x for b, x in enumerate(xs) if b not in gone]
+    pts = np.concatenate(shown) if shown else np.zeros((1, 3))
     lo, hi = pts.min(axis=0), pts.max(axis=0)
     span = np.maximum(hi - lo, 1e-9 * max(1.0, float(np.ptp(pts))))
     ax.set_xlim(lo[0], lo[0] + span[0])
@@ -285,7 +319,7 @@ def plot_snapshot(result: Result | PathLike, step: int | None, path: PathLike, *
     ax.set_ylabel("y North (m)")
     ax.set_zlabel("z up (m)")
     ax.set_title(_title(result, label))
-    free = np.flatnonzero(~fixed)
+    free = np.array([b for b in np.flatnonzero(~fixed) if b not in gone], dtype=np.int64)
     if len(free) <= MAX_LABELS:  # block names at their highest vertex
         for b in free:
             top = xs[b][np.argmax(xs[b][:, 2])]

@@ -199,6 +199,27 @@ class Result:
             out[name] = self._read(f"bolts/{name}")
         return out
 
+    def stages(self) -> list[dict[str, Any]]:
+        """The stages of a staged run (empty otherwise): name, start and end time (s) and
+        step, status, removed energy (J), the blocks removed as it starts and its bolts."""
+        if "stages" not in self._file:
+            return []
+        g = self._file["stages"]
+        names = [_text(x) for x in g["names"][()]]
+        return [{"name": names[k], "start_time": float(g["start_time"][k]),
+                 "end_time": float(g["end_time"][k]), "start_step": int(g["start_step"][k]),
+                 "end_step": int(g["end_step"][k]), "status": _text(g["status"][k]),
+                 "removed_energy": float(g["removed_energy"][k]),
+                 "removed_blocks": json.loads(_text(g["removed_blocks"][k])),
+                 "bolts": json.loads(_text(g["bolts"][k]))} for k in range(len(names))]
+
+    def removed_at(self, time: float) -> set[int]:
+        """Blocks gone at `time` s: those removed by a stage that started before it (the
+        frame at a stage's start is the stage before's end, the blocks still there)."""
+        names = list(self.block_names)
+        return {names.index(n) for st in self.stages() if st["start_time"] < time
+                for n in st["removed_blocks"] if n in names}
+
     def water_resultants(self) -> np.ndarray | None:
         """Resultant water force on each block `(K, n, 3)` N (None for a dry model)."""
         return self._read("water/resultant") if "water" in self._file else None

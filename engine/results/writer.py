@@ -43,7 +43,7 @@ from engine.results.layout import (
     point_velocities,
     transform_points,
 )
-from engine.step.frame import ENERGY_NAMES, Frame
+from engine.step.frame import ENERGY_NAMES, REMOVED, Frame
 
 log = logging.getLogger(__name__)
 
@@ -77,6 +77,21 @@ def _publish(tmp: Path, path: Path, overwrite: bool) -> None:
         os.replace(tmp, path)
         return
     tmp.unlink()
+
+
+def write_stages(f: h5py.File, stages: list[dict[str, Any]]) -> None:
+    """The `/stages` group of a staged run (layout: :mod:`engine.results.layout`)."""
+    g = f.create_group("stages")
+    g.create_dataset("names", data=[s["name"] for s in stages], dtype=_STR)
+    for key in ("start_time", "end_time"):
+        g[key] = np.array([s[key] for s in stages], float)
+    for key in ("start_step", "end_step"):
+        g[key] = np.array([s[key] for s in stages], np.int64)
+    g["removed_energy"] = np.array([s["removed_energy"] for s in stages], float)
+    g.create_dataset("status", data=[s["status"] for s in stages], dtype=_STR)
+    g.create_dataset("removed_blocks", data=[json.dumps(s["removed_blocks"]) for s in stages],
+                     dtype=_STR)
+    g.create_dataset("bolts", data=[json.dumps(s["bolts"]) for s in stages], dtype=_STR)
 
 
 class ResultWriter:
@@ -337,7 +352,8 @@ class ResultWriter:
             self._ignored_energies |= extra
         scalars = (frame.step, frame.time, frame.dt, frame.open_close_iterations,
                    frame.max_penetration,
-                   tuple(frame.energies.get(name, np.nan) for name in ENERGY_NAMES))
+                   tuple(frame.energies.get(name, 0.0 if name in REMOVED else np.nan)
+                         for name in ENERGY_NAMES))
         nbytes = (sum(a.nbytes for a in arrays.values())
                   + sum(a.nbytes for a in contacts.values())
                   + 72 * len(st.vertices))  # VTKHDF points written per step
@@ -446,6 +462,8 @@ class ResultWriter:
             f.attrs["message"] = message
             f.attrs["summary"] = text
             f.attrs["n_steps"] = np.int64(self.n_flushed)
+            if summary and summary.get("stages"):
+                write_stages(f, summary["stages"])
 
     # --- context manager: a writer left without end() says so in its status
     def __enter__(self) -> ResultWriter:

@@ -14,9 +14,14 @@ from engine.model import Model
 STORED_ENERGIES = ("kinetic", "elastic", "contact")
 WORKS = ("gravity_work", "external_work")
 DISSIPATIONS = ("friction_dissipation", "numerical_dissipation", "damping_dissipation")
+#: energy that left the model with what a stage removed (excavated blocks' kinetic, strain
+#: and spring energy, removed bolts'): like a dissipation, never created energy; only a
+#: staged run (:mod:`engine.step.stages`) has it, 0 for any other
+REMOVED = ("removed_energy",)
 #: every energy a frame carries, in the order of the result file
 ENERGY_NAMES = ("kinetic", "elastic", "contact", "gravity_work", "friction_dissipation",
-                "external_work", "numerical_dissipation", "damping_dissipation")
+                "external_work", "numerical_dissipation", "damping_dissipation",
+                "removed_energy")
 
 
 def energy_created(energies: dict) -> float | np.ndarray:
@@ -27,7 +32,7 @@ def energy_created(energies: dict) -> float | np.ndarray:
         return sum(np.nan_to_num(np.asarray(energies[n], float)) for n in names
                    if n in energies)
 
-    return total(STORED_ENERGIES) + total(DISSIPATIONS) - total(WORKS)
+    return total(STORED_ENERGIES) + total(DISSIPATIONS) + total(REMOVED) - total(WORKS)
 
 
 @dataclass

@@ -173,7 +173,8 @@ def geometry(result: Result) -> tuple[dict[str, Any], dict[str, np.ndarray]]:
             "block_names": result.block_names, "fixed": [bool(f) for f in result.fixed],
             "material": [int(m) for m in result.material],
             "volume": [float(v) for v in result.volume],
-            "joints": joint_planes(result.scene_json, origin, hi - lo)}
+            "joints": joint_planes(result.scene_json, origin, hi - lo),
+            "stages": _stages(result)}
     arrays = {
         "vertices": (x0 - origin).astype("<f4"),
         "vertex_offsets": result.surface()["vertex_offsets"].astype("<u4"),
@@ -183,6 +184,15 @@ def geometry(result: Result) -> tuple[dict[str, Any], dict[str, np.ndarray]]:
         "centroid0": (result.initial_centroids - origin).astype("<f4"),
     }
     return head, arrays
+
+
+def _stages(result: Result) -> list[dict[str, Any]]:
+    """A staged run's stages for the viewer: name, start time (s) and the blocks (indices)
+    removed as each starts (empty without stages)."""
+    names = list(result.block_names)
+    return [{"name": st["name"], "start_time": st["start_time"],
+             "removed": [names.index(b) for b in st["removed_blocks"] if b in names]}
+            for st in result.stages()]
 
 
 def _quaternions(affine: np.ndarray) -> np.ndarray:

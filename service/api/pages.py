@@ -316,6 +316,21 @@ def _sweep_section(part: dict[str, Any] | None) -> str:
     return "".join(out)
 
 
+def _stages_section(summary: dict[str, Any]) -> str:
+    """A staged run's stages: each one's time span, steps, status, the blocks it removed,
+    the energy that left with them and the bolts acting in it ('' without stages)."""
+    stages = summary.get("stages") or []
+    if not stages:
+        return ""
+    rows = [[st["name"], f"{_num(st['start_time'])} – {_num(st['end_time'])}",
+             f"{st['start_step']} – {st['end_step']}", st["status"],
+             ", ".join(st["removed_blocks"]) or "—", _num(st["removed_energy"]),
+             ", ".join(st["bolts"]) or "—"] for st in stages]
+    return ("<h3 id='stages'>Stages</h3>"
+            + _table(rows, ["stage", "time (s)", "steps", "status", "blocks removed",
+                            "energy removed (J)", "bolts acting"]))
+
+
 def _snapshot_section(src: str | None, meta: dict[str, Any]) -> str:
     """The blocks at the last recorded step, drawn from the result file's vertices."""
     if src is None:
@@ -386,6 +401,7 @@ def report_html(job: JobRecord, root: str, job_dir: Path, scene_text: str,
                   + (f", {sum(map(bool, fixed))} fixed" if fixed else ""))
         s.append(f"<h2>Result</h2><p>{escape(counts)}</p>"
                  + _table((_LABELS.get(k, k), summary[k]) for k in keys if k in summary))
+        s.append(_stages_section(summary))
         s.append(_snapshot_section(snapshot, result_meta))
         s.append(_blocks_section(summary, result_meta))
     elif "blocks.json" in docs:

@@ -26,7 +26,7 @@ from engine.analyses.strength_reduction import (
     factor_of_safety,
 )
 from engine.results.writer import ResultWriter
-from engine.step.simulation import STATUS_COMPLETED, Progress, run
+from engine.step.simulation import STATUS_COMPLETED, Progress
 from schemas.convert import BuildResult, build_model
 from schemas.errors import SceneError
 from schemas.scene import SCHEMA_VERSION, scene_json_schema
@@ -253,7 +253,9 @@ def cmd_run(args: argparse.Namespace) -> int:
     printer = None if args.quiet or args.json else _ProgressPrinter(Path(args.scene).stem)
     if printer is not None:
         _note_compilation()
-    res = run(built.model, recorder=writer, progress=printer, scene_json=scene_text)
+    res = _run_built(args, built, writer, printer, scene_text, out)
+    if res is None:
+        return EXIT_SCENE
     if printer is not None and printer.tty:
         print(file=sys.stderr)
     summary = run_summary(res.summary, built)
@@ -274,6 +276,38 @@ def cmd_run(args: argparse.Namespace) -> int:
     for w in res.summary.get("warnings", []):
         print(f"warning: {w}", file=sys.stderr)
     return EXIT_OK if res.status == STATUS_COMPLETED else EXIT_RUN
+
+
+def _run_built(args: argparse.Namespace, built: Any, writer: ResultWriter,
+               printer: _ProgressPrinter | None, scene_text: str, out: Path) -> Any:
+    """Run the scene (through its stages, saving each stage's end in --checkpoints, or from
+    --resume-from); None after a problem with the checkpoint (said on stderr)."""
+    from engine.step.staged_run import checkpoint_fits, load_checkpoint, run_scene
+
+    resume = None
+    if args.resume_from:
+        if not built.stages:
+            print("--resume-from: the scene has no stages to resume", file=sys.stderr)
+            return None
+        try:
+            resume = load_checkpoint(args.resume_from)
+        except (OSError, ValueError, KeyError) as exc:
+            print(f"--resume-from: cannot read {args.resume_from} ({exc})", file=sys.stderr)
+            return None
+        why = checkpoint_fits(built.model, built.stages, resume[1])
+        if why:
+            print(f"--resume-from: {why}", file=sys.stderr)
+            return None
+    checkpoints = args.checkpoints or (f"{out}.stages" if built.stages else None)
+    return run_scene(built.model, built.stages, recorder=writer, progress=printer,
+                     scene_json=scene_text, checkpoints=checkpoints, resume=resume)
+
+
+def _one_model(built: BuildResult, analysis: str) -> None:
+    """SceneError (exit 2) when an analysis of one model is asked of a staged scene."""
+    from schemas.stage_checks import refuse_stages
+
+    refuse_stages(built, analysis)
 
 
 def _note_compilation() -> None:
@@ -303,6 +337,7 @@ def _trial_printer(args: argparse.Namespace, factor: str) -> Callable[[TrialRun]
 def cmd_fos(args: argparse.Namespace) -> int:
     """Factor of safety by strength reduction (bisection on tan φ / F)."""
     built = _load(args.scene)
+    _one_model(built, "the factor-of-safety search")
     note = _trial_printer(args, "F = {:.4f}")
     result = factor_of_safety(built.model, fos_controls(built), progress=note)
     doc = fos_document(result, built)
@@ -320,6 +355,7 @@ def cmd_fos(args: argparse.Namespace) -> int:
 def cmd_seismic(args: argparse.Namespace) -> int:
     """Critical (yield) seismic coefficient by bisection on kh."""
     built = _load(args.scene)
+    _one_model(built, "the critical seismic coefficient search")
     note = _trial_printer(args, "kh = {:.5f}")
     result = critical_seismic_coefficient(built.model, seismic_controls(built), progress=note)
     doc = seismic_document(result, built)
@@ -393,7 +429,7 @@ def cmd_sweep(args: argparse.Namespace) -> int:
     from service.sweep import run_sweep, spec_of_scene
 
     scene = json.loads(Path(args.scene).read_text(encoding="utf-8"))
-    build_model(scene)  # the scene must be valid before any realisation
+    _one_model(build_model(Path(args.scene)), "a sweep")  # valid before any realisation
     section = _sweep_options(args, scene)
     if section is None:
         print("polydda sweep: give --friction-mean and --friction-sd, or --parameter, or the "
@@ -601,6 +637,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--quiet", action="store_true", help="no progress output")
     p.add_argument("--json", action="store_true",
                    help="print the summary as one JSON document (no progress output)")
+    p.add_argument("--checkpoints", metavar="DIR", help="a staged run saves the state at "
+                   "each stage's end here as stage-<k>.npz (default: RESULT.h5.stages)")
+    p.add_argument("--resume-from", metavar="STAGE.npz", help="continue a staged run from "
+                   "the end of a stage (its checkpoint; the scene may change later stages)")
     p.set_defaults(func=cmd_run)
 
     p = sub.add_parser("fos", help="factor of safety by strength reduction")
@@ -621,6 +661,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--json", action="store_true", help="print one JSON document")
     p.add_argument("--plot", metavar="OUT.png", help="write the stereonet to this PNG file")
     p.set_defaults(func=cmd_kinematics)
+
+    from service.cli.keyblocks import add_parser as add_keyblocks
+
+    add_keyblocks(sub, _load)
 
     p = sub.add_parser(
         "sweep", help="sweep or Monte Carlo analysis: probability of failure",

@@ -61,7 +61,8 @@ class Process:
 def _simulation(build: BuildResult, scene_text: str, job_dir: Path,
                 ctx: TaskContext) -> Outcome:
     from engine.results.writer import ResultWriter
-    from engine.step.simulation import STATUS_CANCELLED, STATUS_COMPLETED, Progress, run
+    from engine.step.simulation import STATUS_CANCELLED, STATUS_COMPLETED, Progress
+    from engine.step.staged_run import run_scene
     from schemas.scene import SCHEMA_VERSION
 
     def progress(p: Progress) -> None:
@@ -72,8 +73,9 @@ def _simulation(build: BuildResult, scene_text: str, job_dir: Path,
                duration=build.model.controls.duration)
     writer = ResultWriter(job_dir / RESULT_FILE, overwrite=True, schema_version=SCHEMA_VERSION,
                           record_contacts=build.model.controls.record_contacts)
-    res = run(build.model, recorder=writer, progress=progress, should_stop=ctx.should_stop,
-              scene_json=scene_text)
+    res = run_scene(build.model, build.stages, recorder=writer, progress=progress,
+                    should_stop=ctx.should_stop, scene_json=scene_text,
+                    checkpoints=job_dir / "stages" if build.stages else None)
     write_json_atomic(job_dir / "summary.json", run_summary(res.summary, build))
     s = res.summary
     ctx.report(100.0 * min(1.0, s["simulated_time"] / build.model.controls.duration),
@@ -191,9 +193,20 @@ def _sweep(build: BuildResult | None, scene_text: str, job_dir: Path,
     return Outcome("successful", f"{spec.mode}: {pof} realisations")
 
 
+def _single_model_check(analysis: str) -> Callable[[Any], None]:
+    """The check of a process that analyses one model: no stages (schemas.stage_checks)."""
+    def check(scene: Any) -> None:
+        from schemas.stage_checks import refuse_stages
+
+        refuse_stages(scene, analysis)
+    return check
+
+
 def _sweep_check(scene: Any) -> None:
+    from schemas.stage_checks import refuse_stages
     from service.sweep import spec_of_scene
 
+    refuse_stages(scene, "a sweep")
     spec_of_scene(scene.model_dump(mode="json", exclude_none=True))
 
 
@@ -216,13 +229,14 @@ PROCESSES: dict[str, Process] = {p.id: p for p in (
             "at which the watched blocks start to accelerate (the scene's "
             "analysis.factor_of_safety: watched blocks, joint materials, times).",
             ("fos.json",), "fos.json", "factor_of_safety", "factor_of_safety",
-            _factor_of_safety),
+            _factor_of_safety, check=_single_model_check("the factor-of-safety search")),
     Process("critical-seismic-coefficient", "Critical seismic coefficient",
             "Find by bisection on the horizontal pseudo-static coefficient kh (the scene's "
             "seismic azimuth and kv, full joint strengths) the kh at which the watched blocks "
             "start to accelerate (the scene's analysis.critical_seismic_coefficient).",
             ("seismic.json",), "seismic.json", "critical_seismic_coefficient",
-            "critical_seismic_coefficient", _critical_seismic),
+            "critical_seismic_coefficient", _critical_seismic,
+            check=_single_model_check("the critical seismic coefficient search")),
     Process("block-cutting", "Block cutting",
             "Cut the domain by the joints and list the blocks (volume, centroid, vertices, "
             "faces); nothing is run.",

@@ -190,12 +190,33 @@ function quatRotate(q, x, y, z, out) {
   out[2] = z + qw * tz + (qx * ty - qy * tx);
 }
 
+// a staged run: the blocks its stages removed by time t (drawn collapsed to a point)
+function removedAt(t) {
+  const gone = new Set();
+  for (const st of g.head.stages || []) {
+    if (st.start_time < t) for (const b of st.removed) gone.add(b);
+  }
+  return gone;
+}
+
+// the stage the frame at time t belongs to ("" without stages)
+function stageAt(t) {
+  let name = "";
+  for (const st of g.head.stages || []) if (st.start_time < t || !name) name = st.name;
+  return name;
+}
+
 function draw(k) {
   if (!g || !state.frameCount) return;
   const { a, n, V, T, vblock, rel } = g;
   const d = g.disp.row(k), rq = g.rot.row(k), P = g.pos.array, out = [0, 0, 0];
+  const gone = removedAt(g.times[k]);
   for (let v = 0; v < V; v++) {
     const b = vblock[v];
+    if (gone.has(b)) {
+      for (let j = 0; j < 3; j++) P[3 * v + j] = a.centroid0[3 * b + j] + d[3 * b + j];
+      continue;
+    }
     quatRotate([rq[4 * b], rq[4 * b + 1], rq[4 * b + 2], rq[4 * b + 3]],
                rel[3 * v], rel[3 * v + 1], rel[3 * v + 2], out);
     for (let j = 0; j < 3; j++) P[3 * v + j] = a.centroid0[3 * b + j] + d[3 * b + j] + out[j];
@@ -312,8 +333,10 @@ function updateLabel() {
   const k = state.frame;
   const t = g && g.times.length ? g.times[k] : 0;
   const step = g && g.steps.length ? g.steps[k] : 0;
+  const stage = g && g.head.stages && g.head.stages.length ? ` · stage ${stageAt(t)}` : "";
   $("frame-label").textContent = state.frameCount
-    ? `frame ${k + 1}/${state.frameCount} · step ${step} · t = ${fmt(t)} s` : "no steps yet";
+    ? `frame ${k + 1}/${state.frameCount} · step ${step} · t = ${fmt(t)} s${stage}`
+    : "no steps yet";
   $("status").textContent = state.status;
 }
 
@@ -413,6 +436,7 @@ state.screenOf = (b) => {
   return { x: r.left + (p.x + 1) / 2 * r.width, y: r.top + (1 - p.y) / 2 * r.height };
 };
 state.pick = (b) => pick(b);
+state.removed = () => (g ? [...removedAt(g.times[state.frame])] : []);
 state.setFrame = (k) => setFrame(k);
 state.litPixels = () => {
   renderer.render(scene, camera);

@@ -207,9 +207,16 @@ def arrange(cells: list[Cell], planes: Planes, cut_ids: Sequence[int]) -> list[C
 
 
 def initial_cells(
-    domain: Polyhedron, planes: Planes
+    domain: Polyhedron, planes: Planes, tiles: Sequence[Polyhedron] | None = None
 ) -> tuple[list[Cell], list[int], bool]:
-    """Starting cells, extra planes to cut by, and whether to filter cells by the domain."""
+    """Starting cells, extra planes to cut by, and whether to filter cells by the domain.
+
+    `tiles`: convex solids that tile a concave domain face to face (a terrain's columns, a
+    block's convex pieces): they are the starting cells, so no face plane of the domain
+    cuts across it (a terrain of many facets would otherwise be cut by every facet's plane).
+    """
+    if tiles:
+        return [_polyhedron_cell(t, planes) for t in tiles], [], False
     if domain.is_convex:
         return [_polyhedron_cell(domain, planes)], [], False
     lo, hi = domain.bounds

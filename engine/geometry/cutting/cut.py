@@ -46,6 +46,7 @@ def _idle_joint_warnings(joints: Sequence[JointPlane], separating: set[int]) -> 
 def cut_blocks(
     domain: Polyhedron, joints: Sequence[JointPlane], tol: Tolerances = DEFAULT_TOLERANCES,
     min_block_volume: float | None = None, min_block_width: float | None = None,
+    tiles: Sequence[Polyhedron] | None = None,
 ) -> CutResult:
     """Cut `domain` into blocks by `joints` (persistent or bounded by an extent polygon).
 
@@ -60,12 +61,14 @@ def cut_blocks(
     large - merge the same way: a thin block bounds every step's displacement (nothing may
     tunnel through it) and its narrow faces confuse the contact search. A merged block may
     be concave; its convex pieces are cells of the same arrangement, so it touches its
-    neighbours exactly as the cells did.
+    neighbours exactly as the cells did. `tiles` (convex solids tiling a concave domain face
+    to face, :func:`engine.geometry.cutting.cells.initial_cells`) start the cut instead of
+    the domain's bounding box cut by every face plane of the domain.
     """
     warnings: list[str] = []
     scale = float(np.ptp(domain.vertices[domain.surface_vertex_ids], axis=0).max())
     planes = Planes(tol.lengths(scale).on_plane)
-    cells, cut, filter_inside = initial_cells(domain, planes)
+    cells, cut, filter_inside = initial_cells(domain, planes, tiles)
     jlist, jcut = joints_of(joints, planes)
     cells = arrange(cells, planes, cut + jcut)
     if filter_inside:
