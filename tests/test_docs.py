@@ -100,8 +100,14 @@ def test_tutorial_commands_run(page: Path, tmp_path: Path) -> None:
     run_page(page, tmp_path, slow=False)
 
 
+#: pages whose long blocks CI runs too (`slow and ci`: two strength reductions, ~1 min)
+CI_PAGES = {"bolted-block-water"}
+
+
 @pytest.mark.slow
-@pytest.mark.parametrize("page", RUNNABLE, ids=lambda p: p.stem)
+@pytest.mark.parametrize("page", [pytest.param(p, marks=[pytest.mark.ci] if p.stem in CI_PAGES
+                                               else []) for p in RUNNABLE],
+                         ids=lambda p: p.stem)
 def test_tutorial_commands_run_in_full(page: Path, tmp_path: Path) -> None:
     """Every block of the page, the strength reductions and long runs too."""
     run_page(page, tmp_path, slow=True)
