@@ -131,15 +131,26 @@ def _argument_rows(parser: argparse.ArgumentParser) -> list[tuple[str, str, str]
         if isinstance(a, argparse._HelpAction):
             continue
         if a.option_strings:
-            meta = "" if a.nargs == 0 else f" {a.metavar or a.dest.upper()}"
+            choices = "{" + ",".join(map(str, a.choices)) + "}" if a.choices else None
+            meta = "" if a.nargs == 0 else f" {a.metavar or choices or a.dest.upper()}"
             name = ", ".join(f"`{o}{meta}`" for o in a.option_strings)
         else:
             name = f"`{a.metavar or a.dest}`"
         default = ("" if a.default in (None, False, argparse.SUPPRESS) or a.nargs == 0
                    else f"`{a.default}`")
-        rows.append((name, (a.help or "") % {"default": a.default}
-                     if a.help and "%(default)" in a.help else (a.help or ""), default))
+        rows.append((name, _expand_help(a, parser.prog), default))
     return rows
+
+
+def _expand_help(action: argparse.Action, prog: str) -> str:
+    """An argument's help with argparse's `%(default)s`-style fields filled in."""
+    text = action.help or ""
+    if "%" not in text:
+        return text
+    try:
+        return text % {**vars(action), "prog": prog}
+    except (KeyError, TypeError, ValueError):
+        return text
 
 
 def cli_markdown() -> str:
