@@ -218,7 +218,7 @@ def api_markdown() -> str:
                   ((m.upper(), f"[`{p}`](#{o.get('operationId', '').lower()})",
                     o.get("summary", "")) for tag in ops for m, p, o in ops[tag])), ""]
     for tag, items in ops.items():
-        out += [f"## {tag.capitalize()}", ""]
+        out += [f"## {tag.capitalize()} {{#tag-{tag.lower()}}}", ""]
         for method, path, op in items:
             op_id = op.get("operationId", f"{method}-{path}").lower()
             out += [f"### {method.upper()} `{path}` {{#{op_id}}}", "",
@@ -235,8 +235,9 @@ def api_markdown() -> str:
             body = op.get("requestBody")
             if body:
                 kinds = ", ".join(f"`{k}`" for k in body.get("content", {}))
-                out += [f"Request body ({kinds}): {_cell(body.get('description', ''))} "
-                        "A scene is the JSON of the [scene reference](scene.md).", ""]
+                what = _cell(body.get("description", "")).rstrip(".")
+                out += [f"Request body ({kinds}){': ' + what if what else ''}. A scene is the "
+                        "JSON of the [scene reference](scene.md).", ""]
             responses = op.get("responses", {})
             if responses:
                 out += [_table(["status", "meaning", "content"],
