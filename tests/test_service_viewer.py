@@ -201,6 +201,35 @@ def test_frames_of_1000_blocks_are_under_a_tenth_of_the_hdf5(tmp_path: Path) -> 
     assert ratio < 0.1
 
 
+def test_home_page_names_jobs_by_their_scene_with_dates_and_an_upload_form(
+        cube_job: Any) -> None:
+    """The home page names each job by its scene (`name`; the description when the name is
+    the default), gives its status and dates, and carries the form that starts a process;
+    the names come from the job table in one query."""
+    from datetime import UTC, datetime
+
+    c, url, _ = cube_job
+    job = url.rsplit("/", 1)[1]
+    unnamed = {k: v for k, v in cube_scene().items() if k != "name"}
+    unnamed["description"] = "a cube left <unnamed>"
+    url2 = c.post("/jobs", json=unnamed).headers["Location"]
+    wait_final(c, url2)
+    page = c.get("/?f=html").text
+    row = page[page.index(f"data-job='{job}'"):]
+    row = row[:row.index("</tr>")]
+    assert "<span class='job-name' title=''>cube</span>" in row
+    assert "status-successful" in row and "100 %" in row
+    created = c.get(url).json()["created"]  # ISO 8601
+    day = datetime.fromisoformat(created.replace("Z", "+00:00")).astimezone(UTC)
+    assert f"{day:%Y-%m-%d %H:%M} UTC" in row
+    # no name: the description, escaped
+    assert "a cube left &lt;unnamed&gt;" in page
+    assert "id='upload-form'" in page and "/static/home.js" in page
+    for process in ("simulation", "factor-of-safety", "sweep"):
+        assert f'<option value="{process}">' in page
+    assert c.get("/static/home.js").status_code == 200
+
+
 def test_home_page_for_browsers_and_the_json_landing_for_clients(cube_job: Any) -> None:
     c, url, _ = cube_job
     landing = c.get("/")

@@ -1,5 +1,7 @@
-"""The viewer and the report in a real headless Chromium (Debian's, driven by playwright):
-the wedge job draws, animates and picks; a 1,000-block, 100-step result opens in < 3 s.
+"""The viewer, the report and the home page in a real headless Chromium (Debian's, driven by
+playwright): the wedge job draws, starts at its first frame and plays, picks; its axes
+triad and north arrow follow the camera and its scale bar measures the model; a 1,000-block,
+100-step result opens in < 3 s; a scene uploaded on the home page runs to completion.
 
 Set POLYDDA_VIEWER_SCREENSHOTS=DIR to keep screenshots of the viewer and the report there.
 """
@@ -77,11 +79,17 @@ def test_wedge_viewer_draws_animates_and_picks(served: Any) -> None:
     page, bad = open_page(served, f"/jobs/{job}/viewer")
     try:
         page.wait_for_function("window.polydda && window.polydda.ready", timeout=20_000)
-        st = page.evaluate("({n: polydda.blockCount, k: polydda.frame, m: polydda.frameCount,"
-                           " lit: polydda.litPixels()})")
+        st = page.evaluate("({n: polydda.blockCount, start: polydda.startFrame,"
+                           " m: polydda.frameCount, lit: polydda.litPixels()})")
         assert st["n"] == 2  # the wedge and its base
-        assert st["m"] == 21 and st["k"] == 20  # step 0 and every 10th; opens at the end
+        assert st["m"] == 21 and st["start"] == 0  # step 0 and every 10th; opens at step 0
         assert st["lit"] > 20_000  # pixels of the 1200x~700 canvas that are not background
+        # ... and plays the run through once, to its last frame, then stops
+        page.wait_for_function("polydda.playing || polydda.framesPlayed > 0", timeout=5_000)
+        page.wait_for_function("!polydda.playing && polydda.frame === 20", timeout=20_000)
+        assert page.evaluate("polydda.framesPlayed") == 20
+        assert page.inner_text("#play") == "Play"
+        assert "step 200 " in page.inner_text("#frame-label")
         label = page.inner_text("#frame-label")
         page.focus("#slider")
         page.keyboard.press("Home")
@@ -131,6 +139,8 @@ def test_contacts_toggle_shows_the_steps_contacts_and_forces(served: Any) -> Non
     page, bad = open_page(served, f"/jobs/{job}/viewer")
     try:
         page.wait_for_function("window.polydda && window.polydda.ready", timeout=20_000)
+        page.wait_for_function("!polydda.playing && polydda.frame === polydda.frameCount - 1",
+                               timeout=20_000)  # played through to the last step
         assert page.inner_text("#contact-count") == ""
         assert page.evaluate("polydda.contactCount") is None
         page.check("#contacts")
@@ -158,9 +168,12 @@ def test_contacts_toggle_shows_the_steps_contacts_and_forces(served: Any) -> Non
 
 def test_viewer_strides_long_results(served: Any) -> None:
     _, job, _, _ = served
-    page, bad = open_page(served, f"/jobs/{job}/viewer?max_frames=5")
+    page, bad = open_page(served, f"/jobs/{job}/viewer?max_frames=5&play=false")
     try:
         page.wait_for_function("window.polydda && window.polydda.ready", timeout=20_000)
+        assert page.evaluate("polydda.frame") == 0 and not page.evaluate("polydda.playing")
+        page.focus("#slider")
+        page.keyboard.press("End")
         assert page.evaluate("polydda.frameCount") == 5  # 21 recorded steps, every 5th
         assert "every 5th" in page.inner_text("#stride")
         assert "step 200 " in page.inner_text("#frame-label")
@@ -207,7 +220,7 @@ def test_thousand_blocks_open_in_under_3_s(served: Any) -> None:
     page, bad = open_page(served, "/static/pages.css")  # a page, a context: made already
     try:
         t0 = time.perf_counter()
-        page.goto(served[0].url + f"/jobs/{big}/viewer")
+        page.goto(served[0].url + f"/jobs/{big}/viewer?play=false")
         page.wait_for_function("window.polydda && window.polydda.ready", timeout=30_000)
         wall = time.perf_counter() - t0
         st = page.evaluate("({n: polydda.blockCount, m: polydda.frameCount,"
@@ -238,6 +251,9 @@ def test_viewer_follows_a_running_job(served: Any) -> None:
             page.wait_for_function("window.polydda && window.polydda.ready", timeout=30_000)
             first = page.evaluate("polydda.frameCount")
             assert page.evaluate("polydda.status") == "running"
+            # a live job is shown at its newest step (the "follow" box), not played from
+            # its start: playback at 15 frames a second would fall behind the run
+            assert not page.evaluate("polydda.playing")
             # new steps arrive by polling and the view moves to the newest
             page.wait_for_function(f"polydda.frameCount >= {first} + 2 && "
                                    "polydda.frame === polydda.frameCount - 1", timeout=20_000)
@@ -267,3 +283,139 @@ def test_wedge_base_faces_are_triangulated_without_overlap(served: Any) -> None:
                 for f in faces)
     assert any(len(f) > 4 for f in faces)
     assert area == pytest.approx(exact, rel=1e-5)
+
+
+def _view_basis(direction: list[float]) -> tuple[Any, Any]:
+    """Right and up unit vectors of a camera looking at the origin from `direction` with
+    z up (three.js's lookAt), worked out here independently of the page."""
+    import numpy as np
+
+    back = np.asarray(direction, float) / np.linalg.norm(direction)
+    right = np.cross([0.0, 0.0, 1.0], back)
+    right /= np.linalg.norm(right)
+    return right, np.cross(back, right)
+
+
+def test_viewer_triad_north_arrow_and_scale_bar(served: Any) -> None:
+    """The triad draws East, North and Up as the camera sees them (first from the south-west
+    and above, then from straight above, where north points up the page and east right);
+    the scale bar's length on the page is its label's length at the centre of rotation."""
+    import numpy as np
+
+    _, job, _, _ = served
+    page, bad = open_page(served, f"/jobs/{job}/viewer?play=false")
+    try:
+        page.wait_for_function("window.polydda && window.polydda.ready", timeout=20_000)
+        right, up = _view_basis([-0.45, -0.8, 0.45])  # the viewer's first camera
+        triad = page.evaluate("polydda.triad")
+        for name, axis in (("E", [1, 0, 0]), ("N", [0, 1, 0]), ("Up", [0, 0, 1])):
+            assert triad[name] == pytest.approx([right @ axis, -(up @ axis)], abs=1e-4), name
+        # the north arrow on the page points where the camera sees north
+        line = page.evaluate("(() => { const l = document.getElementById('triad-N');"
+                             " return ['x1','y1','x2','y2'].map(a => +l.getAttribute(a)); })()")
+        assert [line[2] - line[0], line[3] - line[1]] == pytest.approx(
+            [40 * right[1], -40 * up[1]], abs=1e-3)
+        assert sorted(page.locator("#triad text").all_text_contents()) == ["E", "N", "Up"]
+        page.evaluate("polydda.lookFrom([0, -1e-4, 1])")  # a plan view, from above
+        triad = page.evaluate("polydda.triad")
+        assert triad["N"] == pytest.approx([0, -1], abs=1e-3)  # up the page
+        assert triad["E"] == pytest.approx([1, 0], abs=1e-3)   # to the right
+        assert np.hypot(*triad["Up"]) < 1e-3                    # towards the viewer
+
+        def check_scale_bar() -> float:
+            bar = page.evaluate("polydda.scaleBar")
+            cam = page.evaluate("polydda.camera()")
+            t, r = np.array(cam["target"]), np.array(cam["right"])
+            p0 = page.evaluate(f"polydda.project({t.tolist()})")
+            p1 = page.evaluate(f"polydda.project({(t + bar['metres'] * r).tolist()})")
+            assert np.hypot(p1["x"] - p0["x"], p1["y"] - p0["y"]) == pytest.approx(
+                bar["pixels"], rel=1e-3)
+            mantissa = bar["metres"] / 10 ** np.floor(np.log10(bar["metres"]))
+            assert min(abs(mantissa - m) for m in (1, 2, 5)) < 1e-9, bar
+            assert 120 / 2.5 <= bar["pixels"] <= 120 + 1e-6
+            width = page.evaluate("document.querySelector('#scalebar .bar')"
+                                  ".getBoundingClientRect().width")
+            assert width == pytest.approx(bar["pixels"], abs=1.0)
+            assert page.inner_text("#scalebar") == f"{bar['metres']:g} m"
+            return float(bar["metres"])
+
+        far = check_scale_bar()
+        box = page.locator("#view").bounding_box()
+        page.mouse.move(box["x"] + box["width"] / 2, box["y"] + box["height"] / 2)
+        for _ in range(8):  # zoom in: the bar stands for fewer metres
+            page.mouse.wheel(0, -400)
+            page.wait_for_timeout(60)
+        page.wait_for_timeout(400)
+        assert check_scale_bar() < far
+        shot(page, "viewer-plan.png")
+    finally:
+        page.close()
+    assert bad == []
+
+
+def _upload(page: Any, path: Path, process: str) -> None:
+    page.set_input_files("#scene-file", str(path))
+    page.select_option("#process", process)
+    page.click("#upload")
+
+
+def test_home_page_uploads_a_scene_that_completes(served: Any, tmp_path: Path) -> None:
+    """A scene chosen in the home page's form is posted to the API, its job appears under
+    the scene's name with its status and date, and follows to `successful`; a bad scene
+    is refused with its problems named."""
+    import json
+
+    server = served[0]
+    scene = wedge_scene(0.05)
+    scene["name"] = "uploaded_wedge"
+    (tmp_path / "wedge.json").write_text(json.dumps(scene))
+    bad_scene = {**scene, "joint_materials": {"joint": {"friction_angle": 95}}}
+    (tmp_path / "bad.json").write_text(json.dumps(bad_scene))
+    page, bad = open_page(served, "/")
+    try:
+        assert page.is_visible("#upload-form")
+        _upload(page, tmp_path / "bad.json", "simulation")
+        page.wait_for_function("document.getElementById('upload-status').textContent"
+                               ".startsWith('422')", timeout=10_000)
+        assert "joint_materials.joint.friction_angle" in page.inner_text("#upload-problems")
+        _upload(page, tmp_path / "wedge.json", "simulation")
+        page.wait_for_selector("#jobs tr:has-text('uploaded_wedge')", timeout=15_000)
+        job = page.locator("#jobs tr:has-text('uploaded_wedge')").get_attribute("data-job")
+        # the page follows the job and reloads when it ends, with its report link
+        page.wait_for_selector(f"#jobs tr[data-job='{job}'] td.status-successful",
+                               timeout=180_000)
+        row = page.locator(f"#jobs tr[data-job='{job}']")
+        text = row.inner_text()
+        assert "simulation" in text and "100 %" in text and " UTC" in text
+        assert row.locator("a", has_text="report").count() == 1
+        doc = httpx.get(f"{server.url}/jobs/{job}", timeout=10).json()
+        assert doc["status"] == "successful" and doc["processID"] == "simulation"
+        shot(page, "home.png", full_page=True)
+    finally:
+        page.close()
+    assert bad == []
+
+
+def test_home_page_upload_with_api_keys(served: Any, tmp_path: Path) -> None:
+    """With API keys on, the home page asks for the key once (a cookie); the upload form
+    sends it as X-API-Key (the cookie alone is not accepted for POST)."""
+    import json
+
+    browser = served[3]
+    (tmp_path / "cube.json").write_text(json.dumps(cube_scene(duration=0.02)))
+    with Server(tmp_path / "data", POLYDDA_API_KEYS="secret-key") as server:
+        page = browser.new_page(viewport={"width": 1200, "height": 800})
+        try:
+            page.goto(server.url + "/")
+            page.fill("#key", "secret-key")
+            page.click("#key-form button")
+            page.wait_for_selector("#upload-form", timeout=10_000)
+            _upload(page, tmp_path / "cube.json", "simulation")
+            page.wait_for_selector("#jobs td.status-successful", timeout=120_000)
+            assert "cube" in page.inner_text("#jobs")
+            # the cookie on its own does not start a job
+            r = httpx.post(f"{server.url}/jobs", json=cube_scene(),
+                           cookies={"polydda_key": "secret-key"}, timeout=10)
+            assert r.status_code == 401
+        finally:
+            page.close()

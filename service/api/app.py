@@ -168,7 +168,7 @@ def home_page(request: Request, settings: Settings, store: JobStore, root: str) 
             raise
         return home_html(root, None)
     jobs, total = store.list((), None, 100, 0, client=None if client.admin else client.id)
-    return home_html(root, jobs, total)
+    return home_html(root, jobs, total, names=store.scene_names([j.id for j in jobs]))
 
 
 def serve(host: str = "127.0.0.1", port: int = 8000, settings: Settings | None = None) -> int:

@@ -7,6 +7,7 @@ import hashlib
 import json
 import platform
 from collections.abc import Iterable
+from datetime import UTC, datetime
 from html import escape
 from pathlib import Path
 from typing import Any
@@ -42,11 +43,51 @@ def job_links(job: JobRecord, root: str) -> list[tuple[str, str]]:
     return links
 
 
-def home_html(root: str, jobs: Iterable[JobRecord] | None, total: int = 0) -> str:
-    """The home page: recent jobs with links (None: the caller needs an API key first)."""
+def _when(seconds: float | None) -> str:
+    """A job's time as `YYYY-MM-DD HH:MM` UTC in a <time> element (ISO in its datetime)."""
+    if not seconds:
+        return ""
+    moment = datetime.fromtimestamp(seconds, tz=UTC)
+    return (f"<time datetime='{moment.isoformat(timespec='seconds')}'>"
+            f"{moment:%Y-%m-%d %H:%M} UTC</time>")
+
+
+def _job_name(job: JobRecord, names: dict[str, tuple[str, str]]) -> str:
+    """The scene's name (and its description as a tooltip), or the job id's start."""
+    name, description = names.get(job.id, ("", ""))
+    label = escape(name) if name and name != "scene" else (
+        escape(description[:60]) if description else f"job {escape(job.id[:8])}")
+    return (f"<span class='job-name' title='{escape(description)}'>{label}</span> "
+            f"<span class='mono muted'>{escape(job.id[:8])}</span>")
+
+
+def _upload_form(root: str) -> str:
+    """A form that posts a scene file to POST /jobs (service/static/home.js sends the key
+    cookie as X-API-Key: the cookie alone is accepted for GET requests only)."""
+    options = "".join(f'<option value="{escape(p.id)}">{escape(p.title)}</option>'
+                      for p in PROCESSES.values())
+    return (
+        "<section id='start'><h2>Start a process</h2>"
+        "<form id='upload-form'><label>Scene (JSON) <input id='scene-file' type='file' "
+        "accept='.json,application/json' required></label> "
+        "<label>Process <select id='process'><option value=''>as the scene says "
+        f"(analysis.type)</option>{options}</select></label> "
+        "<button id='upload' type='submit'>Start</button> "
+        "<span id='upload-status' role='status'></span></form>"
+        "<ul id='upload-problems' class='problems'></ul></section>"
+        f'<script type="application/json" id="home-config">'
+        f'{_script_json({"root": root, "poll_ms": 2000})}</script>'
+        f'<script type="module" src="{root}/static/home.js"></script>')
+
+
+def home_html(root: str, jobs: Iterable[JobRecord] | None, total: int = 0,
+              names: dict[str, tuple[str, str]] | None = None) -> str:
+    """The home page: the caller's jobs (named by their scene, with status and dates) and a
+    form to upload a scene and start a process; None: the caller needs an API key first."""
     if jobs is None:
         body = ("<main><p>This service needs an API key. It is kept in this browser "
-                "(a cookie sent with GET requests only) for the viewer and reports.</p>"
+                "(a cookie sent with GET requests only; the upload form sends it as the "
+                "X-API-Key header) for the viewer, reports and uploads.</p>"
                 '<form id="key-form"><label>API key <input id="key" type="password" '
                 'autocomplete="off" size="40"></label> <button>Use key</button></form>'
                 "<script>document.getElementById('key-form').onsubmit=(e)=>{e.preventDefault();"
@@ -54,18 +95,25 @@ def home_html(root: str, jobs: Iterable[JobRecord] | None, total: int = 0) -> st
                 "document.getElementById('key').value)+';path=/;SameSite=Strict';"
                 "location.reload();};</script></main>")
         return _page("PolyDDA", root, _bar(root) + body)
+    names = names or {}
     rows = []
     for j in jobs:
         links = " · ".join(f'<a href="{escape(h)}">{t}</a>' for t, h in job_links(j, root))
-        rows.append(f"<tr><td class='mono'>{escape(j.id[:8])}</td><td>{escape(j.process)}</td>"
-                    f"<td>{escape(j.status)}</td><td class='num'>{int(j.progress)} %</td>"
+        active = "" if j.is_final else " data-active"
+        rows.append(f"<tr data-job='{escape(j.id)}'{active}><td>{_job_name(j, names)}</td>"
+                    f"<td>{escape(j.process)}</td>"
+                    f"<td class='status status-{escape(j.status)}'>{escape(j.status)}</td>"
+                    f"<td class='num progress'>{int(j.progress)} %</td>"
+                    f"<td>{_when(j.created)}</td><td>{_when(j.finished)}</td>"
                     f"<td>{escape(j.message)}</td><td>{links}</td></tr>")
-    table = ("<table id='jobs'><tr><th>job</th><th>process</th><th>status</th><th>progress</th>"
-             "<th>message</th><th>links</th></tr>" + "".join(rows) + "</table>"
-             if rows else "<p>No jobs yet: submit a scene with <code>polydda submit</code> or "
-                          f"<code>POST {root}/jobs</code>.</p>")
-    body = (f"<main><h2>Jobs</h2><p class='muted'>{total} job(s); the newest first. "
-            f"<a href='{root}/jobs'>as JSON</a></p>{table}</main>")
+    table = ("<table id='jobs'><tr><th>scene</th><th>process</th><th>status</th>"
+             "<th>progress</th><th>submitted</th><th>ended</th><th>message</th>"
+             "<th>links</th></tr>" + "".join(rows) + "</table>"
+             if rows else "<p id='no-jobs'>No jobs yet: upload a scene above, or submit one "
+                          f"with <code>polydda submit</code> or <code>POST {root}/jobs</code>."
+                          "</p>")
+    body = (f"<main>{_upload_form(root)}<h2>Jobs</h2><p class='muted'>{total} job(s); the "
+            f"newest first. <a href='{root}/jobs'>as JSON</a></p>{table}</main>")
     return _page("PolyDDA jobs", root, _bar(root) + body)
 
 
@@ -75,12 +123,15 @@ def _script_json(value: Any) -> str:
             .replace("&", "\\u0026"))
 
 
-def viewer_html(job: JobRecord, root: str, poll_ms: int = 2000, max_frames: int = 2000) -> str:
+def viewer_html(job: JobRecord, root: str, poll_ms: int = 2000, max_frames: int = 2000,
+                play: bool = True) -> str:
     """The 3-D viewer of a job's result (loads service/static/viewer.js); it loads at most
-    `max_frames` steps (every k-th recorded step beyond)."""
+    `max_frames` steps (every k-th recorded step beyond), shows the first and plays the run
+    (unless `play` is false), with an axes triad (E, N, Up; north as the bold arrow) and a
+    scale bar at the centre of rotation."""
     base = f"{root}/jobs/{job.id}"
     cfg = {"job": base, "frames": f"{base}/results/frames", "poll_ms": poll_ms,
-           "max_frames": max_frames, "max_bytes": 48_000_000}
+           "max_frames": max_frames, "max_bytes": 48_000_000, "play": play}
     importmap = {"imports": {"three": f"{root}/static/three/three.module.min.js",
                              "three/addons/": f"{root}/static/three/"}}
     first = f"{cfg['frames']}?start=0&stop={cfg['max_frames']}&geometry=true"
@@ -103,6 +154,10 @@ def viewer_html(job: JobRecord, root: str, poll_ms: int = 2000, max_frames: int 
             "</div>"
             '<div id="colourbar" hidden><div id="cb-title"></div><div class="ramp"></div>'
             '<div class="ends"><span id="cb-min"></span><span id="cb-max"></span></div></div>'
+            '<svg id="triad" width="110" height="110" role="img" aria-label="axes: East, '
+            'North (bold arrow), Up"></svg>'
+            '<div id="scalebar" title="length at the centre of rotation"><div class="bar">'
+            '</div><span class="label"></span></div>'
             '<div id="info" hidden><h2 id="pick-name"></h2><div id="pick-kind" class="muted">'
             "</div><div>final displacement: <b id='pick-disp'></b></div>"
             "<div class='mono' id='pick-comp'></div>"

@@ -348,11 +348,13 @@ _HTML = {200: {"content": {"text/html": {"schema": {"type": "string"}}}}}
 def job_viewer(job: JobDep, root: RootDep,
                max_frames: Annotated[int, Query(ge=2, le=100_000, description=(
                    "steps loaded at most: every k-th recorded step beyond"))] = 2000,
-               ) -> HTMLResponse:
+               play: Annotated[bool, Query(description=(
+                   "start playing from the first frame once loaded (false: stay on it)"))]
+               = True) -> HTMLResponse:
     if RESULT_FILE not in PROCESSES[job.process].artifacts:
         raise Problem(404, "no-such-result", "No viewer",
                       f"job {job.id} is a {job.process} job: it records no steps to view")
-    return HTMLResponse(pages.viewer_html(job, root, max_frames=max_frames))
+    return HTMLResponse(pages.viewer_html(job, root, max_frames=max_frames, play=play))
 
 
 @router.get("/jobs/{job_id}/report", tags=["pages"], response_class=HTMLResponse,

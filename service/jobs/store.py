@@ -177,6 +177,20 @@ class JobStore:
             raise KeyError(job_id)
         return str(row[0])
 
+    def scene_names(self, job_ids: Sequence[str]) -> dict[str, tuple[str, str]]:
+        """(name, description) of each job's scene, read by SQLite from the stored JSON in
+        one query (the home page's job names)."""
+        if not job_ids:
+            return {}
+        marks = ", ".join("?" * len(job_ids))
+        with self.connect() as db:
+            rows = db.execute(
+                "SELECT id, json_extract(scene, '$.name'), "
+                "substr(json_extract(scene, '$.description'), 1, 200) FROM jobs "
+                f"WHERE id IN ({marks}) AND json_valid(scene)", list(job_ids)).fetchall()
+        return {str(i): (str(n) if isinstance(n, str) else "",
+                         str(d) if isinstance(d, str) else "") for i, n, d in rows}
+
     def list(self, statuses: Iterable[str] = (), process: str | None = None, limit: int = 50,
              offset: int = 0, client: str | None = None) -> tuple[list[JobRecord], int]:
         """Jobs newest first, filtered by status, process and owner (`client`; None: every

@@ -77,7 +77,7 @@ const sun = new THREE.DirectionalLight(0xffffff, 1.6);
 sun.position.set(0.4, -0.6, 1.0);
 scene.add(sun);
 let dirty = true;
-controls.addEventListener("change", () => { dirty = true; });
+controls.addEventListener("change", () => { dirty = true; updateOverlays(); });
 
 function resize() {
   const el = renderer.domElement;
@@ -86,8 +86,82 @@ function resize() {
   camera.aspect = w / Math.max(1, h);
   camera.updateProjectionMatrix();
   dirty = true;
+  updateOverlays();
 }
 window.addEventListener("resize", resize);
+// the stage also changes size when the controls bar below it wraps to another line
+if (window.ResizeObserver) new ResizeObserver(() => resize()).observe(renderer.domElement);
+
+// ------------------------------------------------------------------ triad, north, scale bar
+const AXES = [["E", [1, 0, 0], "#d62728"], ["N", [0, 1, 0], "#2ca02c"], ["Up", [0, 0, 1], "#1f77b4"]];
+const SVG_NS = "http://www.w3.org/2000/svg";
+
+function screenDirection(v) {
+  // a world direction as seen on the page: (right, down) components of its projection on
+  // the view plane (length 1 when it lies in the view plane, 0 when along the view)
+  camera.updateMatrixWorld();
+  const d = new THREE.Vector3(...v).transformDirection(camera.matrixWorldInverse);
+  return [d.x, -d.y, d.z];
+}
+
+function updateTriad() {
+  const svg = $("triad");
+  if (!svg) return;
+  const c = 55, L = 40, dirs = {};
+  const items = AXES.map(([name, v, colour]) => {
+    const [x, y, z] = screenDirection(v);
+    dirs[name] = [x, y];
+    return { name, colour, x, y, z };
+  }).sort((p, q) => p.z - q.z);  // the axis pointing away from the viewer first
+  svg.replaceChildren();
+  const el = (tag, attrs, text) => {
+    const e = document.createElementNS(SVG_NS, tag);
+    for (const [k, v] of Object.entries(attrs)) e.setAttribute(k, v);
+    if (text) e.textContent = text;
+    svg.appendChild(e);
+    return e;
+  };
+  el("circle", { cx: c, cy: c, r: 52, fill: "rgba(255,255,255,0.85)", stroke: "#ccd" });
+  for (const a of items) {
+    const tx = c + L * a.x, ty = c + L * a.y, north = a.name === "N";
+    el("line", { x1: c, y1: c, x2: tx, y2: ty, stroke: a.colour, "stroke-width": north ? 3 : 2,
+                 id: `triad-${a.name}` });
+    const len = Math.hypot(a.x, a.y);
+    if (len > 0.05) {  // an arrow head; the north arrow's filled and larger
+      const ux = a.x / len, uy = a.y / len, h = north ? 11 : 7, w = north ? 6 : 4;
+      el("polygon", { fill: a.colour, points: [[tx, ty], [tx - h * ux + w * uy, ty - h * uy - w * ux],
+                                                 [tx - h * ux - w * uy, ty - h * uy + w * ux]]
+                                                 .map((p) => p.join(",")).join(" ") });
+    }
+    const lx = c + (L + 9) * (len > 0.05 ? a.x / Math.max(len, 1e-9) * Math.max(len, 0.35) : 0);
+    const ly = c + (L + 9) * (len > 0.05 ? a.y / Math.max(len, 1e-9) * Math.max(len, 0.35) : 0);
+    el("text", { x: lx, y: ly + 4, "text-anchor": "middle", fill: a.colour,
+                 "font-weight": north ? "bold" : "normal", "font-size": north ? 13 : 11 }, a.name);
+  }
+  state.triad = dirs;
+}
+
+function niceLength(x) {
+  // the largest 1, 2 or 5 × 10^k not above x
+  const k = Math.floor(Math.log10(x)), base = 10 ** k;
+  for (const m of [5, 2, 1]) if (m * base <= x * (1 + 1e-9)) return m * base;
+  return base;
+}
+
+function updateScaleBar() {
+  const box = $("scalebar");
+  if (!box || !g) return;
+  // metres per CSS pixel at the centre of rotation (perspective: it depends on the depth)
+  const el = renderer.domElement, h = Math.max(1, el.clientHeight);
+  const dist = camera.position.distanceTo(controls.target);
+  const perPixel = 2 * dist * Math.tan(THREE.MathUtils.degToRad(camera.fov / 2)) / h;
+  const metres = niceLength(120 * perPixel), pixels = metres / perPixel;
+  box.querySelector(".bar").style.width = `${pixels.toFixed(1)}px`;
+  box.querySelector(".label").textContent = `${+metres.toPrecision(3)} m`;
+  state.scaleBar = { metres, pixels };
+}
+
+function updateOverlays() { updateTriad(); updateScaleBar(); }
 
 function build(head, a) {
   const n = head.n_blocks, V = a.vertices.length / 3, T = a.triangles.length / 3;
@@ -437,6 +511,27 @@ state.screenOf = (b) => {
 };
 state.pick = (b) => pick(b);
 state.removed = () => (g ? [...removedAt(g.times[state.frame])] : []);
+// a point of the model (the frames' coordinates) on the page, and the camera's frame
+state.project = (p) => {
+  const r = renderer.domElement.getBoundingClientRect();
+  const q = new THREE.Vector3(...p).project(camera);
+  return { x: r.left + (q.x + 1) / 2 * r.width, y: r.top + (1 - q.y) / 2 * r.height };
+};
+state.camera = () => {
+  camera.updateMatrixWorld();
+  const e = camera.matrixWorld.elements;
+  return { position: camera.position.toArray(), target: controls.target.toArray(),
+           right: [e[0], e[1], e[2]], up: [e[4], e[5], e[6]] };
+};
+// look at the centre of rotation from a direction (x East, y North, z up), same distance
+state.lookFrom = (dir) => {
+  const d = camera.position.distanceTo(controls.target);
+  camera.position.copy(controls.target).add(new THREE.Vector3(...dir).normalize().multiplyScalar(d));
+  controls.update();
+  updateOverlays();
+  dirty = true;
+};
+state.play = (on) => setPlaying(on);
 state.setFrame = (k) => setFrame(k);
 state.litPixels = () => {
   renderer.render(scene, camera);
@@ -452,11 +547,15 @@ state.litPixels = () => {
 
 // ------------------------------------------------------------------ controls
 let playing = false, lastTick = 0;
-$("play").addEventListener("click", () => {
-  playing = !playing;
+state.playing = false;
+state.framesPlayed = 0;
+function setPlaying(on) {
+  playing = !!on;
+  state.playing = playing;
   $("play").textContent = playing ? "Pause" : "Play";
-  if (playing && state.frame >= state.frameCount - 1) setFrame(0);
-});
+  if (playing && state.frame >= state.frameCount - 1 && state.status !== "running") setFrame(0);
+}
+$("play").addEventListener("click", () => setPlaying(!playing));
 $("slider").addEventListener("input", (e) => setFrame(+e.target.value));
 $("colour").addEventListener("change", () => draw(state.frame));
 $("joints").addEventListener("change", (e) => { if (g) { g.joints.visible = e.target.checked; dirty = true; } });
@@ -473,8 +572,8 @@ function loop(now) {
   requestAnimationFrame(loop);
   if (playing && now - lastTick > 1000 / +$("fps").value) {
     lastTick = now;
-    if (state.frame < state.frameCount - 1) setFrame(state.frame + 1);
-    else if (state.status !== "running") { playing = false; $("play").textContent = "Play"; }
+    if (state.frame < state.frameCount - 1) { setFrame(state.frame + 1); state.framesPlayed++; }
+    else if (state.status !== "running") setPlaying(false);
   }
   if (dirty) { dirty = false; renderer.render(scene, camera); }
 }
@@ -554,13 +653,20 @@ async function start() {
     appendMotion(part.head, part.arrays);
   }
   $("stride").textContent = g.stride > 1 ? `every ${g.stride}th recorded step` : "";
-  setFrame(state.frameCount - 1);
+  // a finished run from its start: the first frame, then play (cfg.play false: stay
+  // there); a live one at its newest step, followed (playing at the chosen fps would fall
+  // behind a run that records faster)
+  const live = state.status === "running" && $("follow").checked;
+  setFrame(live ? state.frameCount - 1 : 0);
+  state.startFrame = state.frame;
+  updateOverlays();
   renderer.render(scene, camera);
   dirty = false;
   state.loadMs = performance.now() - t0;
   state.readyMs = performance.now();  // since the navigation started
   state.ready = true;
   $("load-time").textContent = `loaded in ${(state.loadMs / 1000).toFixed(2)} s`;
+  if (cfg.play !== false && !live && state.frameCount > 1) setPlaying(true);
 }
 
 resize();
