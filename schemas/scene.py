@@ -92,6 +92,14 @@ def _between(lo: float, hi: float, unit: str, *, hi_open: bool = False) -> Any:
 Positive = Annotated[float, Field(gt=0)]
 NonNegative = Annotated[float, Field(ge=0)]
 Vec3 = Annotated[list[float], Field(min_length=3, max_length=3)]
+#: the largest coordinate (m) of a point, and the longest length: far beyond any rock mass
+#: (the Earth's circumference is 4e7 m), far below where squares of lengths overflow
+MAX_COORDINATE = 1e8
+#: a point (m): each coordinate within ±MAX_COORDINATE
+Point = Annotated[list[Annotated[float, Field(ge=-MAX_COORDINATE, le=MAX_COORDINATE)]],
+                  Field(min_length=3, max_length=3)]
+#: a length (m): positive, at most MAX_COORDINATE
+Length = Annotated[float, Field(gt=0, le=MAX_COORDINATE)]
 FrictionAngle = _between(0, 90, "degrees", hi_open=True)
 Dip = _between(0, 90, "degrees")
 DipDirection = _between(-360, 360, "degrees")
@@ -100,7 +108,11 @@ Ratio01 = _between(0, 1, "")
 Azimuth = _between(0, 360, "degrees")
 SeismicCoefficient = _between(0, 5, "")
 VerticalSeismicCoefficient = _between(-5, 5, "")
-Name = Annotated[str, Field(min_length=1, max_length=100)]
+#: control characters (NUL, newlines...) that no name or label may hold
+_PRINTABLE = r"^[^\x00-\x1f\x7f]*$"
+Name = Annotated[str, Field(min_length=1, max_length=100, pattern=_PRINTABLE)]
+#: the scene's own name: one line of text
+Label = Annotated[str, Field(max_length=200, pattern=_PRINTABLE)]
 
 
 def _name_to_selection(value: Any) -> Any:
@@ -109,7 +121,8 @@ def _name_to_selection(value: Any) -> Any:
 
 
 class _Model(BaseModel):
-    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
+    # strict: a number is a JSON number (never "0.05" or true), a flag true or false
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False, strict=True)
 
 
 def _exactly_one(obj: BaseModel, names: tuple[str, ...]) -> None:
@@ -149,8 +162,8 @@ class JointMaterialSpec(_Model):
 class BoxSpec(_Model):
     """An axis-aligned box from `min` to `max` (m)."""
 
-    min: Vec3
-    max: Vec3
+    min: Point
+    max: Point
 
     @model_validator(mode="after")
     def _ordered(self) -> BoxSpec:
@@ -166,7 +179,7 @@ class BoxSpec(_Model):
 class PolyhedronSpec(_Model):
     """A closed polyhedron: vertices and faces (vertex indices, counter-clockwise from outside)."""
 
-    vertices: list[Vec3]
+    vertices: list[Point]
     faces: list[list[Annotated[int, Field(ge=0)]]]
 
 
@@ -202,8 +215,8 @@ class DomainSpec(_Model):
 class DiscSpec(_Model):
     """A circular joint of `radius` (m) about `center` (default: the joint's point)."""
 
-    radius: Positive
-    center: Vec3 | None = None
+    radius: Length
+    center: Point | None = None
     sides: Annotated[int, Field(ge=3, le=256)] = Field(
         24, description="polygon sides used for the disc"
     )
@@ -212,7 +225,7 @@ class DiscSpec(_Model):
 class ExtentSpec(_Model):
     """Where a non-persistent joint exists: a convex `polygon` in its plane or a `disc`."""
 
-    polygon: Annotated[list[Vec3], Field(min_length=3)] | None = None
+    polygon: Annotated[list[Point], Field(min_length=3)] | None = None
     disc: DiscSpec | None = None
 
     @model_validator(mode="after")
@@ -230,8 +243,8 @@ class JointSpec(_Model):
     name: Name | None = Field(None, description="default J1, J2, ... by position")
     dip: Dip = Field(description="degrees, 0 to 90")
     dip_direction: DipDirection = Field(description="degrees clockwise from North")
-    point: Vec3 = Field(description="a point on the plane (m)")
-    spacing: Positive | None = Field(None, description="m; makes this a joint set")
+    point: Point = Field(description="a point on the plane (m)")
+    spacing: Length | None = Field(None, description="m; makes this a joint set")
     extent: ExtentSpec | None = None
     joint_material: Name | None = Field(None, description="default joint material if omitted")
 
@@ -250,7 +263,7 @@ class BlockSpec(_Model):
     """
 
     name: Name | None = Field(None, description="default block1, block2, ... by position")
-    vertices: list[Vec3]
+    vertices: list[Point]
     faces: list[list[Annotated[int, Field(ge=0)]]]
     material: Name | None = None
     fixed: bool = False
@@ -265,7 +278,7 @@ class Selection(_Model):
     in the box `centroid_in`. A bare string means a name."""
 
     name: Name | None = None
-    contains: Vec3 | None = None
+    contains: Point | None = None
     centroid_in: BoxSpec | None = None
 
     @model_validator(mode="after")
@@ -289,14 +302,14 @@ class BlockPairSpec(_Model):
 class FixedPointSpec(_Model):
     """A point of a block held in place by a stiff spring (block default: the one at `point`)."""
 
-    point: Vec3
+    point: Point
     block: Target | None = None
 
 
 class PointLoadSpec(_Model):
     """A force (N) at a point of a block (block default: the one at `point`)."""
 
-    point: Vec3
+    point: Point
     force: Vec3
     block: Target | None = None
 
@@ -341,8 +354,8 @@ class BoltSpec(_BoltProperties):
     or the ground (a point that never moves) when no block contains it."""
 
     name: Name | None = Field(None, description="default bolt1, bolt2, ... by position")
-    head: Vec3 = Field(description="m, where the bolt's plate bears on the block")
-    anchor: Vec3 = Field(description="m, the anchored end")
+    head: Point = Field(description="m, where the bolt's plate bears on the block")
+    anchor: Point = Field(description="m, the anchored end")
     block: Target | None = Field(None, description="the head's block (default: the block "
                                                    "at `head`)")
     anchor_block: Target | None = Field(None, description="the anchor's block (default: "
@@ -355,15 +368,15 @@ class BoltPatternSpec(_BoltProperties):
     long, pointing into the rock along `trend` / `plunge` (degrees; plunge positive down).
     Bolts are named `name_prefix` + 1, 2, ..."""
 
-    origin: Vec3 = Field(description="m, the head of the first bolt (on the face)")
+    origin: Point = Field(description="m, the head of the first bolt (on the face)")
     face_normal: Vec3 = Field(description="outward normal of the face the heads are on")
     row_direction: Vec3 = Field(description="a direction in the face along which a row runs")
-    spacing: Positive = Field(description="m between bolts along a row")
-    row_spacing: Positive | None = Field(None, description="m between rows (default: "
+    spacing: Length = Field(description="m between bolts along a row")
+    row_spacing: Length | None = Field(None, description="m between rows (default: "
                                                            "spacing)")
     rows: Annotated[int, Field(ge=1, le=1000)] = 1
     columns: Annotated[int, Field(ge=1, le=1000)] = Field(1, description="bolts per row")
-    length: Positive = Field(description="m, head to anchor")
+    length: Length = Field(description="m, head to anchor")
     trend: Azimuth = Field(description="degrees clockwise from North of the bolt's "
                                        "direction into the rock")
     plunge: _between(-90, 90, "degrees") = Field(description="degrees below horizontal of "
@@ -391,7 +404,7 @@ class PhreaticSurfaceSpec(_Model):
     """The water table as a plane: below it the joints hold water at hydrostatic pressure
     γw·(depth below the plane, measured vertically)."""
 
-    point: Vec3 = Field(description="m, a point on the water table")
+    point: Point = Field(description="m, a point on the water table")
     dip: _between(0, 90, "degrees", hi_open=True) = Field(
         0.0, description="degrees, 0 (horizontal) to less than 90")
     dip_direction: DipDirection = Field(0.0, description="degrees clockwise from North")
@@ -816,9 +829,10 @@ class Scene(_Model):
     """A DDA scene: materials, blocks (cut from a domain by joints, and/or explicit),
     boundary conditions, gravity and the analysis to run."""
 
-    schema_version: str = Field(SCHEMA_VERSION, description="scene format version")
-    name: str = "scene"
-    description: str = ""
+    schema_version: Annotated[str, Field(max_length=20)] = Field(
+        SCHEMA_VERSION, description="scene format version")
+    name: Label = "scene"
+    description: Annotated[str, Field(max_length=20_000)] = ""
     materials: dict[Name, MaterialSpec] = Field(
         default_factory=dict,
         description="by name; none given: one granite-like 'rock' (2600 kg/m³, 10 GPa, 0.25)",
