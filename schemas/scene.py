@@ -1028,8 +1028,9 @@ def scene_problems(scene: Scene) -> list[dict[str, str]]:
         p.add("", "the scene has no blocks: give a 'domain' (cut by 'joints') or 'blocks'")
 
     seen: dict[str, int] = {}
+    raw = {"joints": _raw_names(scene.joints), "blocks": _raw_names(scene.blocks)}  # once
     for k, j in enumerate(scene.joints):
-        loc = format_loc(("joints", k), {"joints": _raw_names(scene.joints)})
+        loc = format_loc(("joints", k), raw)
         joint_material(f"{loc}.joint_material", j.joint_material)
         name = scene.joint_name(k)
         if name in seen:
@@ -1038,7 +1039,7 @@ def scene_problems(scene: Scene) -> list[dict[str, str]]:
 
     seen = {}
     for k, b in enumerate(scene.blocks):
-        loc = format_loc(("blocks", k), {"blocks": _raw_names(scene.blocks)})
+        loc = format_loc(("blocks", k), raw)
         material(f"{loc}.material", b.material)
         name = scene.block_name(k)
         if name in seen:

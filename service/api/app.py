@@ -54,6 +54,22 @@ def make_backend(settings: Settings, store: JobStore) -> Backend:
     return EmbeddedBackend(settings, store)
 
 
+def _submission_state(app: FastAPI, settings: Settings) -> None:
+    """What submissions share: the scene-checking pool and its thread limiter, the
+    structure checks' limiter, the clients' checking budgets and in-flight counts."""
+    import anyio
+
+    from service.api.submission import InFlight
+    from service.api.validation import ValidationBudget, shared_pool
+
+    app.state.validation_pool = shared_pool(settings.validation_workers,
+                                            settings.worker_env(), settings.worker_nice)
+    app.state.validation_limiter = anyio.CapacityLimiter(settings.validation_workers)
+    app.state.structure_limiter = anyio.CapacityLimiter(2)
+    app.state.validation_budget = ValidationBudget(settings.validation_budget)
+    app.state.in_flight = InFlight()
+
+
 def create_app(settings: Settings | None = None, lock: DataDirLock | None = None) -> FastAPI:
     """The FastAPI application. Its lifespan takes the data directory's lock (unless `lock`
     is held already), opens the job table and starts the backend."""
@@ -69,6 +85,7 @@ def create_app(settings: Settings | None = None, lock: DataDirLock | None = None
             from service.api.metrics import make_registry
 
             app.state.metrics = make_registry(store, backend)
+            _submission_state(app, settings)
             await run_in_threadpool(backend.start)
             try:
                 yield

@@ -11,7 +11,7 @@ import time
 from collections.abc import AsyncIterator
 from typing import Annotated, Any, Literal
 
-from fastapi import APIRouter, Depends, Query
+from fastapi import APIRouter, Depends, Query, Request
 from fastapi.responses import FileResponse, HTMLResponse, JSONResponse, Response
 from starlette.concurrency import run_in_threadpool
 from starlette.datastructures import Headers
@@ -115,14 +115,15 @@ _SUBMIT_RESPONSES: dict[int | str, dict[str, Any]] = {
 @router.post("/processes/{process_id}/execution", tags=["processes"], status_code=201,
              summary="Run a process on a scene (creates a job)", openapi_extra=_SCENE_BODY,
              responses=_SUBMIT_RESPONSES, response_model=None, operation_id="executeProcess")
-def execute_process(process_id: str, data: SceneBody, settings: SettingsDep, store: StoreDep,
-                    backend: BackendDep, client: ClientDep, root: RootDep,
-                    key: IdempotencyKey = None, shares: Shares = 1) -> JSONResponse:
+async def execute_process(process_id: str, data: SceneBody, request: Request,
+                          settings: SettingsDep, store: StoreDep, backend: BackendDep,
+                          client: ClientDep, root: RootDep, key: IdempotencyKey = None,
+                          shares: Shares = 1) -> JSONResponse:
     if process_id not in PROCESSES:
         raise _no_such_process(process_id)
-    return submission.submit(process_id, data, settings=settings, store=store,
-                             backend=backend, client=client, key=key, root=root,
-                             shares=shares)
+    return await submission.submit(process_id, data, settings=settings, store=store,
+                                   backend=backend, client=client, key=key, root=root,
+                                   app_state=request.app.state, shares=shares)
 
 
 # --------------------------------------------------------------------------- jobs
@@ -132,11 +133,13 @@ def execute_process(process_id: str, data: SceneBody, settings: SettingsDep, sto
              summary="Submit a scene (creates a job; process from ?process=, the body's "
                      "'process' or the scene's analysis.type)",
              responses=_SUBMIT_RESPONSES, response_model=None, operation_id="createJob")
-def create_job(data: SceneBody, settings: SettingsDep, store: StoreDep, backend: BackendDep,
-               client: ClientDep, root: RootDep, process: ProcessId | None = None,
-               key: IdempotencyKey = None, shares: Shares = 1) -> JSONResponse:
-    return submission.submit(process, data, settings=settings, store=store, backend=backend,
-                             client=client, key=key, root=root, shares=shares)
+async def create_job(data: SceneBody, request: Request, settings: SettingsDep,
+                     store: StoreDep, backend: BackendDep, client: ClientDep, root: RootDep,
+                     process: ProcessId | None = None, key: IdempotencyKey = None,
+                     shares: Shares = 1) -> JSONResponse:
+    return await submission.submit(process, data, settings=settings, store=store,
+                                   backend=backend, client=client, key=key, root=root,
+                                   app_state=request.app.state, shares=shares)
 
 
 @router.get("/jobs", tags=["jobs"], summary="List your jobs (newest first; admins: all)",

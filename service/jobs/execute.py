@@ -42,10 +42,25 @@ def execute(process: str, scene_text: str, job_dir: Path, ctx: TaskContext) -> O
     Scene problems and runs that cannot go on are `failed` with kind `model`; anything else
     (disk full, out of memory, a bug) is `failed` with kind `system`.
     """
+
+    try:
+        job_dir.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        return Outcome("failed", f"system error: cannot make the job's directory: {exc}",
+                       SYSTEM)
+    outcome = _execute(process, scene_text, job_dir, ctx)
+    if ctx.stop_reason is not None and outcome.status == "dismissed":
+        # stopped by the disk guard, not by its owner: a failure of the service's
+        return Outcome("failed", f"system error: {ctx.stop_reason}; partial results kept",
+                       SYSTEM)
+    return outcome
+
+
+def _execute(process: str, scene_text: str, job_dir: Path, ctx: TaskContext) -> Outcome:
     from schemas.convert import build_model
     from schemas.errors import SceneError
+    from service.jobs.store import disk_full
 
-    job_dir.mkdir(parents=True, exist_ok=True)
     if ctx.should_stop():
         return Outcome("dismissed", "cancelled before it started")
     try:
@@ -59,8 +74,24 @@ def execute(process: str, scene_text: str, job_dir: Path, ctx: TaskContext) -> O
         log.exception("job in %s ran out of memory", job_dir)
         return Outcome("failed", "system error: the job ran out of memory", SYSTEM)
     except Exception as exc:
+        if _caused_by(exc, disk_full):
+            log.error("job in %s stopped: the disk is full (%s)", job_dir, exc)
+            return Outcome("failed", f"system error: the disk is full ({exc}); partial "
+                                     "results kept", SYSTEM)
         log.exception("job in %s failed", job_dir)
         return Outcome("failed", f"system error: {type(exc).__name__}: {exc}", SYSTEM)
+
+
+def _caused_by(exc: BaseException, test: Any) -> bool:
+    """True if `exc` or an exception it was raised from or during passes `test`."""
+    seen: set[int] = set()
+    e: BaseException | None = exc
+    while e is not None and id(e) not in seen:
+        if test(e):
+            return True
+        seen.add(id(e))
+        e = e.__cause__ or e.__context__
+    return False
 
 
 # --------------------------------------------------------------------------- RQ entry point
@@ -218,6 +249,7 @@ def run_rq(job_id: str, process: str, scene_text: str) -> str:
     parent = die_with_parent()  # the work horse must not outlive its worker
     ctx = RedisContext(current.connection, job_id, settings.progress_interval,
                        heartbeat_ttl=settings.rq_heartbeat_ttl, parent_pid=parent)
+    ctx.guard_disk(settings.data_dir, settings.min_free_bytes)
     ctx.start_heartbeat()
     try:
         now = time.time()
