@@ -39,7 +39,8 @@ def served(tmp_path_factory: pytest.TempPathFactory) -> Iterator[tuple[Server, s
         pytest.skip("Debian's chromium is not installed (apt-get install chromium)")
     sync_api = pytest.importorskip("playwright.sync_api")
     data = tmp_path_factory.mktemp("viewer-browser") / "data"
-    big, _ = synthetic_job(data, n_blocks=1000, n_steps=100, contacts=False)
+    big, _ = synthetic_job(data, n_blocks=1000, n_steps=100, contacts=False,
+                           client="ip:127.0.0.1")
     with Server(data) as server, sync_api.sync_playwright() as pw:
         with httpx.Client(base_url=server.url, timeout=30) as client:
             r = client.post("/jobs", json=wedge_scene(0.2))
