@@ -71,6 +71,7 @@ def _submission_state(app: FastAPI, settings: Settings) -> None:
     app.state.validation_pool = shared_pool(settings.validation_workers,
                                             settings.worker_env(), settings.worker_nice)
     app.state.validation_limiter = anyio.CapacityLimiter(settings.validation_workers)
+    app.state.validation_threads = anyio.CapacityLimiter(settings.validation_workers)
     app.state.structure_limiter = anyio.CapacityLimiter(2)
     app.state.validation_budget = ValidationBudget(settings.validation_budget)
     app.state.in_flight = InFlight()

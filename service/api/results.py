@@ -20,7 +20,7 @@ from service.api.problems import Problem
 from service.documents import NotRecorded, result_contacts_document
 from service.jobs.backend import Backend
 from service.jobs.processes import PROCESSES, RESULT_FILE
-from service.jobs.store import ACTIVE, SUCCESSFUL, JobRecord, JobStore
+from service.jobs.store import ACTIVE, FAILED, SUCCESSFUL, JobRecord, JobStore
 from service.settings import Settings
 
 log = logging.getLogger("service.api")
@@ -126,7 +126,12 @@ def results_document(job: JobRecord, settings: Settings, root: str) -> dict[str,
     elif (d / RESULT_FILE).is_file():  # a run killed before it could write its summary
         from engine.results.summary import summarize
 
-        doc[p.result_key] = summarize(d / RESULT_FILE)
+        summary = summarize(d / RESULT_FILE)
+        if summary.get("status") == "running":  # the file's word when its run was killed
+            summary["status"] = "killed" if job.status == FAILED else job.status
+            summary["message"] = (f"the run was stopped before it ended ({job.message}); "
+                                  "the steps recorded until then are kept")
+        doc[p.result_key] = summary
     links = []
     for n in files:
         link = {"href": f"{base}/{n}", "rel": "enclosure", "type": FILE_TYPES[Path(n).suffix],

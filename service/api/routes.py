@@ -108,7 +108,7 @@ _SUBMIT_RESPONSES: dict[int | str, dict[str, Any]] = {
                          "Idempotency-Key)", "model": StatusInfo,
           "headers": {"Location": {"schema": {"type": "string"},
                                    "description": "the job's URL"}}},
-    **problem_responses(401, 404, 413, 415, 422, 429, 503, 507),
+    **problem_responses(400, 401, 404, 413, 415, 422, 429, 503, 507),
 }
 
 

@@ -244,38 +244,48 @@ def _replay(store: JobStore, client: Client, key: str | None, digest: str) -> An
 async def check_geometry(app_state: Any, settings: Settings, client: Client,
                          scene_data: Any) -> None:
     """Cut and build the scene in the validation pool (service.api.validation), within
-    the client's budget and the time limit; 422 naming every problem, 429 over budget."""
+    the client's budget (checked when the scene's turn comes) and the time limit; 422
+    naming every problem, 429 over budget, 503 when no checking process could answer."""
     import anyio
 
+    budget = app_state.validation_budget
+    text = json.dumps(scene_data, ensure_ascii=False)
+    async with app_state.validation_limiter:
+        wait = budget.wait_for(client.id)
+        if wait > 0:
+            raise Problem(429, "validation-budget-exhausted", "Scene-checking budget used up",
+                          f"this client may use {settings.validation_budget:g} s of scene "
+                          "checking per minute (POLYDDA_VALIDATION_BUDGET); retry in "
+                          f"{wait:.0f} s",
+                          headers={"Retry-After": str(max(1, math.ceil(wait)))})
+        start = time.monotonic()
+        try:
+            verdict = await anyio.to_thread.run_sync(
+                _check, app_state.validation_pool, text, settings.validation_timeout,
+                limiter=app_state.validation_threads)
+        finally:
+            budget.charge(client.id, time.monotonic() - start)
+    if verdict.problems:
+        raise invalid_scene(verdict.problems)
+
+
+def _check(pool: Any, text: str, timeout: float) -> Any:
+    """pool.check(text, timeout), its failures as problems: 422 past the time limit, 503
+    when no checking process answered."""
     from service.api.validation import CheckTimeout, CheckUnavailable
 
-    budget = app_state.validation_budget
-    wait = budget.wait_for(client.id)
-    if wait > 0:
-        raise Problem(429, "validation-budget-exhausted", "Scene-checking budget used up",
-                      f"this client may use {settings.validation_budget:g} s of scene "
-                      "checking per minute (POLYDDA_VALIDATION_BUDGET); retry in "
-                      f"{wait:.0f} s", headers={"Retry-After": str(max(1, math.ceil(wait)))})
-    text = json.dumps(scene_data, ensure_ascii=False)
-    start = time.monotonic()
     try:
-        verdict = await anyio.to_thread.run_sync(
-            app_state.validation_pool.check, text, settings.validation_timeout,
-            limiter=app_state.validation_limiter)
+        return pool.check(text, timeout)
     except CheckTimeout:
         raise invalid_scene([{"loc": "", "msg": (
-            f"checking the scene's blocks took longer than {settings.validation_timeout:g} "
-            "s, the most this service spends on one scene (POLYDDA_VALIDATION_TIMEOUT): "
-            "make it smaller (fewer blocks or joints)")}]) from None
+            f"checking the scene's blocks took longer than {timeout:g} s, the most this "
+            "service spends on one scene (POLYDDA_VALIDATION_TIMEOUT): make it smaller "
+            "(fewer blocks or joints)")}]) from None
     except CheckUnavailable as exc:
         log.error("scene check failed: %s", exc)
         raise Problem(503, "check-unavailable", "Scene check unavailable",
                       f"the service could not check the scene ({exc}); retry later",
                       headers={"Retry-After": "10"}) from None
-    finally:
-        budget.charge(client.id, time.monotonic() - start)
-    if verdict.problems:
-        raise invalid_scene(verdict.problems)
 
 
 async def submit(process: str | None, data: Any, *, settings: Settings, store: JobStore,
