@@ -234,13 +234,13 @@ class RedisServer:
 class Server:
     """`polydda serve` (the image's command) in a subprocess on a free loopback port."""
 
-    def __init__(self, data_dir: Path, **env: str) -> None:
+    def __init__(self, data_dir: Path, log_dir: Path | None = None, **env: str) -> None:
         self.data_dir = data_dir
         self.port = free_port()
         self.url = f"http://127.0.0.1:{self.port}"
         self.env = {**os.environ, "POLYDDA_DATA_DIR": str(data_dir), **env}
         self.proc: subprocess.Popen[bytes] | None = None
-        self.log = data_dir.parent / f"server-{self.port}.log"
+        self.log = (log_dir or data_dir.parent) / f"server-{self.port}.log"
 
     def start(self, timeout: float = 30.0) -> Server:
         with open(self.log, "ab") as log:

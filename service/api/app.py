@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import asyncio
 import logging
+import sqlite3
 import sys
 from collections.abc import AsyncIterator
 from concurrent.futures import ThreadPoolExecutor
@@ -176,9 +177,14 @@ def _service_routes(app: FastAPI, settings: Settings) -> None:
         return JSONResponse(body, status_code=503 if status == "unavailable" else 200)
 
     def _health(store: JobStore, backend: Backend) -> dict[str, Any]:
-        counts = store.counts()
         checks = backend.health()
         status = checks.pop("status")
+        try:
+            counts = store.counts()
+        except sqlite3.Error as exc:  # a full disk: SQLite cannot even read its table
+            return {"status": "unavailable", "backend": settings.backend,
+                    "version": VERSION, "accepted": None, "running": None, **checks,
+                    "job_table": f"unreadable: {exc}"}
         return {"status": status, "backend": settings.backend, "version": VERSION,
                 "accepted": counts["accepted"], "running": counts["running"], **checks}
 

@@ -15,6 +15,7 @@ import contextlib
 import json
 import logging
 import os
+import shutil
 import signal
 import sqlite3
 import subprocess
@@ -79,18 +80,28 @@ def child_main(db_path: str, job_id: str, process: str, job_dir: str, nice: int,
         os.nice(nice)
     from service.jobs.execute import execute
 
-    store = JobStore(Path(db_path))
+    def send(values: dict[str, Any]) -> None:
+        if outcome_fd >= 0:
+            with contextlib.suppress(OSError):
+                os.write(outcome_fd, json.dumps(values).encode()[:60_000])
+                os.close(outcome_fd)
+
+    try:
+        store = JobStore(Path(db_path))
+        scene_text = store.scene(job_id)
+    except sqlite3.Error as exc:  # e.g. a disk so full that the table cannot be opened
+        send({"status": FAILED, "error_kind": "system", "finished": time.time(),
+              "message": f"system error: the job table could not be read ({exc}"
+                         f"{': the disk is full' if disk_full(exc) else ''})"})
+        raise
     ctx = SqliteContext(store, job_id, parent_pid, interval)
     ctx.guard_disk(Path(db_path).parent, min_free_bytes)
-    outcome = execute(process, store.scene(job_id), Path(job_dir), ctx)
+    outcome = execute(process, scene_text, Path(job_dir), ctx)
     if ctx.orphaned:  # the API process is gone: leave the job running for its successor
         return
     values = {"status": outcome.status, "message": outcome.message,
               "error_kind": outcome.error_kind, "finished": time.time()}
-    if outcome_fd >= 0:
-        with contextlib.suppress(OSError):
-            os.write(outcome_fd, json.dumps(values).encode()[:60_000])
-            os.close(outcome_fd)
+    send(values)
     try:
         store.update(job_id, only_if=[RUNNING], **values)
     except sqlite3.Error as exc:
@@ -232,10 +243,9 @@ class EmbeddedBackend(Backend):
             if proc.poll() is None:
                 continue
             sent = _read_outcome(self.outcome_pipes.pop(job_id, -1))
-            del self.procs[job_id]
-            self.terminated.pop(job_id, None)
             self.pending[job_id] = self._final_values(job_id, proc, sent)
-        self._write_pending()
+            del self.procs[job_id]  # only now: its outcome is kept in `pending`
+            self.terminated.pop(job_id, None)
 
     def _final_values(self, job_id: str, proc: subprocess.Popen[bytes],
                       sent: dict[str, Any] | None) -> dict[str, Any]:
@@ -245,13 +255,23 @@ class EmbeddedBackend(Backend):
             return {"status": sent["status"], "message": str(sent.get("message") or ""),
                     "error_kind": sent.get("error_kind"),
                     "finished": float(sent.get("finished") or now)}
-        job = self.store.get(job_id)
+        try:
+            job = self.store.get(job_id)
+        except sqlite3.Error:  # unreadable now (a full disk): not cancelled, as far as known
+            job = None
         if job is not None and job.cancel_requested is not None:
             return {"status": DISMISSED, "finished": now,
                     "message": "cancelled: the job process was stopped; partial results kept"}
+        why = " while the data directory's disk was full" if self._disk_full_now() else ""
         return {"status": FAILED, "finished": now, "error_kind": "system",
                 "message": f"system error: the job process ended unexpectedly "
-                           f"({_exit_text(proc.returncode)}); resubmit the job"}
+                           f"({_exit_text(proc.returncode)}){why}; resubmit the job"}
+
+    def _disk_full_now(self) -> bool:
+        try:
+            return shutil.disk_usage(self.settings.data_dir).free < (1 << 20)
+        except OSError:
+            return False
 
     def _write_pending(self) -> None:
         """Write the outcomes of ended job processes to the job table (only over `running`:

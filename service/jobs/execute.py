@@ -51,8 +51,9 @@ def execute(process: str, scene_text: str, job_dir: Path, ctx: TaskContext) -> O
     outcome = _execute(process, scene_text, job_dir, ctx)
     if ctx.stop_reason is not None and outcome.status == "dismissed":
         # stopped by the disk guard, not by its owner: a failure of the service's
-        return Outcome("failed", f"system error: {ctx.stop_reason}; partial results kept",
-                       SYSTEM)
+        kept = "" if outcome.message.startswith("cancelled before") else \
+            "; partial results kept"
+        return Outcome("failed", f"system error: {ctx.stop_reason}{kept}", SYSTEM)
     return outcome
 
 

@@ -111,10 +111,13 @@ UPDATABLE = frozenset({"status", "started", "finished", "updated", "progress", "
 
 
 def disk_full(exc: BaseException) -> bool:
-    """True for the errors of a full disk: SQLite's SQLITE_FULL (13), OSError ENOSPC or
-    EDQUOT (HDF5 and file writes)."""
+    """True for the errors of a disk that takes no more writes: SQLite's SQLITE_FULL (13)
+    and SQLITE_IOERR (10: its write-ahead log could not grow), OSError ENOSPC or EDQUOT
+    (HDF5 and file writes)."""
     if isinstance(exc, sqlite3.Error):
-        return getattr(exc, "sqlite_errorcode", None) == 13 or "disk is full" in str(exc)
+        code = getattr(exc, "sqlite_errorcode", None)
+        return (code is not None and code & 0xFF in (10, 13)) or "disk is full" in str(exc) \
+            or "disk I/O error" in str(exc)
     if isinstance(exc, OSError):
         return exc.errno in (errno.ENOSPC, errno.EDQUOT) or "No space left" in str(exc)
     return False
