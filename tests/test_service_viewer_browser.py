@@ -55,8 +55,8 @@ def served(tmp_path_factory: pytest.TempPathFactory) -> Iterator[tuple[Server, s
 
 
 def open_page(served: Any, path: str) -> tuple[Any, list[str]]:
-    """A new 1200x800 page at `path`; the list collects failed, outside requests and
-    script errors."""
+    """A new 1200x800 page at `path`; the list collects failed, outside requests, script
+    errors and CSP violations."""
     server, _, _, browser = served
     page = browser.new_page(viewport={"width": 1200, "height": 800})
     bad: list[str] = []
@@ -64,8 +64,25 @@ def open_page(served: Any, path: str) -> tuple[Any, list[str]]:
     page.on("request", lambda r: bad.append(f"outside {r.url}")
             if not r.url.startswith(server.url) and not r.url.startswith("data:") else None)
     page.on("pageerror", lambda e: bad.append(f"error {e}"))
+    # the page's Content-Security-Policy (service.api.middleware) blocks nothing it needs
+    page.on("console", lambda m: bad.append(f"csp {m.text}")
+            if "Content Security Policy" in m.text else None)
     page.goto(server.url + path)
     return page, bad
+
+
+def wait_js(page: Any, expression: str, timeout: float = 30_000) -> Any:
+    """Poll `expression` in the page until it is truthy (`timeout` ms). Not
+    page.wait_for_function: its predicate is a string the page's CSP refuses to eval."""
+    deadline = time.monotonic() + timeout / 1000
+    while True:
+        value = page.evaluate(expression)
+        if value:
+            return value
+        if time.monotonic() > deadline:
+            raise AssertionError(f"timed out after {timeout / 1000:g} s waiting for "
+                                 f"{expression}")
+        time.sleep(0.05)
 
 
 def shot(page: Any, name: str, **kw: Any) -> None:
@@ -77,7 +94,7 @@ def test_wedge_viewer_draws_animates_and_picks(served: Any) -> None:
     _, job, _, _ = served
     page, bad = open_page(served, f"/jobs/{job}/viewer")
     try:
-        page.wait_for_function("window.polydda && window.polydda.ready", timeout=20_000)
+        wait_js(page, "window.polydda && window.polydda.ready", timeout=20_000)
         st = page.evaluate("({n: polydda.blockCount, k: polydda.frame, m: polydda.frameCount,"
                            " lit: polydda.litPixels()})")
         assert st["n"] == 2  # the wedge and its base
@@ -107,10 +124,10 @@ def test_wedge_viewer_draws_animates_and_picks(served: Any) -> None:
             page.click("#save")
         assert download.value.suggested_filename.endswith("-step200.png")
         page.check("#contacts")  # contacts of every frame are fetched on demand
-        page.wait_for_function("polydda.frame === 20 && polydda.contactsShown >= 1",
+        wait_js(page, "polydda.frame === 20 && polydda.contactsShown >= 1",
                                timeout=10_000)
         page.click("#play")
-        page.wait_for_function("polydda.frame >= 2 && polydda.frame < 20", timeout=10_000)
+        wait_js(page, "polydda.frame >= 2 && polydda.frame < 20", timeout=10_000)
     finally:
         page.close()
     assert bad == []
@@ -131,11 +148,11 @@ def test_contacts_toggle_shows_the_steps_contacts_and_forces(served: Any) -> Non
                                                                        "sliding"))}
     page, bad = open_page(served, f"/jobs/{job}/viewer")
     try:
-        page.wait_for_function("window.polydda && window.polydda.ready", timeout=20_000)
+        wait_js(page, "window.polydda && window.polydda.ready", timeout=20_000)
         assert page.inner_text("#contact-count") == ""
         assert page.evaluate("polydda.contactCount") is None
         page.check("#contacts")
-        page.wait_for_function("polydda.contactCount != null", timeout=10_000)
+        wait_js(page, "polydda.contactCount != null", timeout=10_000)
         n = len(last["mode"])
         assert n > 0 and page.evaluate("polydda.contactCount") == n
         assert page.evaluate("polydda.contactModes") == modes
@@ -161,7 +178,7 @@ def test_viewer_strides_long_results(served: Any) -> None:
     _, job, _, _ = served
     page, bad = open_page(served, f"/jobs/{job}/viewer?max_frames=5")
     try:
-        page.wait_for_function("window.polydda && window.polydda.ready", timeout=20_000)
+        wait_js(page, "window.polydda && window.polydda.ready", timeout=20_000)
         assert page.evaluate("polydda.frameCount") == 5  # 21 recorded steps, every 5th
         assert "every 5th" in page.inner_text("#stride")
         assert "step 200 " in page.inner_text("#frame-label")
@@ -209,7 +226,7 @@ def test_thousand_blocks_open_in_under_3_s(served: Any) -> None:
     try:
         t0 = time.perf_counter()
         page.goto(served[0].url + f"/jobs/{big}/viewer")
-        page.wait_for_function("window.polydda && window.polydda.ready", timeout=30_000)
+        wait_js(page, "window.polydda && window.polydda.ready", timeout=30_000)
         wall = time.perf_counter() - t0
         st = page.evaluate("({n: polydda.blockCount, m: polydda.frameCount,"
                            " ms: polydda.loadMs, open: polydda.readyMs,"
@@ -236,11 +253,11 @@ def test_viewer_follows_a_running_job(served: Any) -> None:
             "Location"]
         page, bad = open_page(served, url.removeprefix(server.url) + "/viewer")
         try:
-            page.wait_for_function("window.polydda && window.polydda.ready", timeout=30_000)
+            wait_js(page, "window.polydda && window.polydda.ready", timeout=30_000)
             first = page.evaluate("polydda.frameCount")
             assert page.evaluate("polydda.status") == "running"
             # new steps arrive by polling and the view moves to the newest
-            page.wait_for_function(f"polydda.frameCount >= {first} + 2 && "
+            wait_js(page, f"polydda.frameCount >= {first} + 2 && "
                                    "polydda.frame === polydda.frameCount - 1", timeout=20_000)
             assert page.evaluate("polydda.blockCount") == 2
         finally:
