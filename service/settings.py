@@ -89,6 +89,14 @@ class Settings(BaseSettings):
     auth_failures: int = Field(
         10, ge=1, description="wrong API keys an address may send per minute; beyond, its "
                               "requests with a key get 429 until the minute has passed")
+    s3_bucket: str = Field(
+        "", description="S3-compatible bucket for job results (RQ workers upload a job's "
+                        "files when it ends; the API streams them); empty: results stay in "
+                        "the data directory")
+    s3_prefix: str = Field("polydda/", description="key prefix of the results in the bucket")
+    s3_endpoint_url: str = Field("", description="S3 endpoint (MinIO: http://minio:9000); "
+                                                 "empty: AWS")
+    s3_region: str = Field("", description="S3 region (empty: boto3's default)")
     allow_open_network: bool = Field(
         False, description="let `polydda serve` listen beyond loopback without API keys "
                            "(every client on the network may then submit jobs; each sees "

@@ -93,8 +93,17 @@ class Backend:
             return []
         now = time.time() if now is None else now
         gone = []
+        from service.jobs.objectstore import ResultStore
+
+        objects = ResultStore.of(self.settings)
         for job in self.store.expired(now - self.settings.retention):
             shutil.rmtree(self.settings.job_dir(job.id), ignore_errors=True)
+            if objects is not None:
+                try:
+                    objects.delete_job(job.id)
+                except Exception as exc:
+                    log.warning("objects of job %s not deleted: %s", job.id, exc)
+                    continue
             if self.store.delete(job.id):
                 gone.append(job.id)
         if gone:

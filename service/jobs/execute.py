@@ -225,6 +225,25 @@ class RedisContext(TaskContext):
             self.redis.delete(alive_key(self.job_id))
 
 
+def store_results(settings: Any, job_id: str, outcome: Outcome) -> Outcome:
+    """Upload the job's files to the object store, when one is configured (before its
+    outcome is recorded, so an ended job's results are there to serve); a failed upload
+    fails the job (kind system), its files kept in this worker's data directory."""
+    from service.jobs.objectstore import ResultStore
+
+    store = ResultStore.of(settings)
+    if store is None:
+        return outcome
+    try:
+        store.upload_job(job_id, settings.job_dir(job_id))
+    except Exception as exc:
+        log.exception("results of job %s not stored", job_id)
+        return Outcome("failed", f"system error: the results could not be stored in the "
+                                 f"object store ({type(exc).__name__}: {exc}); "
+                                 f"{outcome.status} before that: {outcome.message}", SYSTEM)
+    return outcome
+
+
 def die_with_parent() -> int:
     """Ask Linux to SIGKILL this process when its parent dies (prctl PR_SET_PDEATHSIG);
     returns the parent's pid. Exits at once if the parent is already gone."""
@@ -258,6 +277,8 @@ def run_rq(job_id: str, process: str, scene_text: str) -> str:
                        "worker_pid": os.getpid(),  # the work horse, on the worker's host
                        "run": ctx.run})
         outcome = execute(process, scene_text, settings.job_dir(job_id), ctx)
+        if not ctx.orphaned:
+            outcome = store_results(settings, job_id, outcome)
         if ctx.orphaned:  # the worker is gone (the API re-queues the job), or the job
             # runs again elsewhere: leave the job's records to the run that owns it (exit
             # 0: a live worker would otherwise mark the job's RQ record failed)
