@@ -111,6 +111,9 @@ class HeadAsGet:
         await self.app(dict(scope, method="GET"), head_receive, head_send)
 
 
+_METHODS = frozenset({"GET", "HEAD", "POST", "PUT", "PATCH", "DELETE", "OPTIONS"})
+
+
 class RequestMetrics:
     """Prometheus metrics of the HTTP requests: count and latency by method, route
     (its template, e.g. /jobs/{job_id}) and status, and server errors (5xx) by route."""
@@ -146,7 +149,8 @@ class RequestMetrics:
             route = getattr(scope.get("route"), "path", None)
             if route is None:
                 route = "/static" if scope["path"].startswith("/static/") else "unmatched"
-            labels = (scope["method"], route, str(status))
+            method = scope["method"] if scope["method"] in _METHODS else "other"
+            labels = (method, route, str(status))  # bounded: no label a client can invent
             self.requests.labels(*labels).inc()
             self.latency.labels(*labels).observe(time.perf_counter() - t0)
             if status >= 500:
