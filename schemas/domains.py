@@ -15,7 +15,7 @@ from pathlib import Path
 from typing import Annotated, Literal
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field, model_validator
+from pydantic import BaseModel, Field, model_validator
 
 from engine.geometry.domains import (
     Terrain,
@@ -27,10 +27,11 @@ from engine.geometry.domains import (
 )
 from engine.geometry.polyhedron import Polyhedron, polyhedron_problems
 from schemas.errors import Problems
+from schemas.fields import MAX_COORDINATE, Coordinate, FilePath, Length, Point2, StrictModel
 
 
-class _Model(BaseModel):
-    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
+class _Model(StrictModel):
+    """A part of the scene (strict JSON types: schemas.fields)."""
 
 
 def _exactly_one(obj: BaseModel, names: tuple[str, ...]) -> None:
@@ -41,10 +42,7 @@ def _exactly_one(obj: BaseModel, names: tuple[str, ...]) -> None:
                          f"(got {got})")
 
 
-Positive = Annotated[float, Field(gt=0)]
 DipDirection = Annotated[float, Field(ge=-360, le=360)]
-
-Point2 = Annotated[list[float], Field(min_length=2, max_length=2)]
 #: the most triangles a mesh domain may have (its facets' planes all cut its bounding box)
 MAX_MESH_PLANES = 200
 #: the most nodes a terrain grid may have (two convex columns per cell)
@@ -60,8 +58,8 @@ class SlopeSpec(_Model):
     profile: Annotated[list[Point2], Field(min_length=2, max_length=1000)]
     dip_direction: DipDirection = Field(description="degrees: the direction the slope "
                                                     "faces (its face dips towards it)")
-    width: Positive = Field(description="m along the strike")
-    base: float = Field(description="m, elevation of the flat base")
+    width: Length = Field(description="m along the strike")
+    base: Coordinate = Field(description="m, elevation of the flat base")
     origin: Point2 = Field(default_factory=lambda: [0.0, 0.0],
                            description="m, x and y of the profile's s = 0")
 
@@ -70,11 +68,11 @@ class GridSpec(_Model):
     """A regular grid of ground elevations given inline: nodes at `x0 + i dx`, `y0 + j dy`;
     `elevations[j][i]` m (rows from south to north)."""
 
-    x0: float
-    y0: float
-    dx: Positive
-    dy: Positive
-    elevations: Annotated[list[list[float | None]], Field(min_length=2)]
+    x0: Coordinate
+    y0: Coordinate
+    dx: Length
+    dy: Length
+    elevations: Annotated[list[list[Coordinate | None]], Field(min_length=2)]
 
 
 class TerrainSpec(_Model):
@@ -84,13 +82,13 @@ class TerrainSpec(_Model):
     `footprint` [x0, y0, x1, y1] (snapped inward to the grid's lines)."""
 
     grid: GridSpec | None = None
-    file: str | None = Field(None, description="path of the file, relative to the scene")
+    file: FilePath | None = Field(None, description="path of the file, relative to the scene")
     data: str | None = Field(None, description="the file's text inline")
     format: Literal["asc", "csv", "stl", "obj", "ply"] | None = Field(
         None, description="of `data` (default: the file's extension)")
-    footprint: Annotated[list[float], Field(min_length=4, max_length=4)] | None = None
-    base: float = Field(description="m, elevation of the flat base")
-    grid_spacing: Positive | None = Field(
+    footprint: Annotated[list[Coordinate], Field(min_length=4, max_length=4)] | None = None
+    base: Coordinate = Field(description="m, elevation of the flat base")
+    grid_spacing: Length | None = Field(
         None, description="m: a surface mesh is sampled on a grid this fine (required)")
 
     @model_validator(mode="after")
@@ -102,7 +100,7 @@ class TerrainSpec(_Model):
 class MeshSpec(_Model):
     """Any closed triangle mesh as the domain (`file` or inline `data`, STL/OBJ/PLY)."""
 
-    file: str | None = Field(None, description="path of the file, relative to the scene")
+    file: FilePath | None = Field(None, description="path of the file, relative to the scene")
     data: str | None = Field(None, description="the file's text inline")
     format: Literal["stl", "obj", "ply"] | None = None
 
@@ -209,6 +207,22 @@ def _load_mesh(src: _Source, p: Problems):  # noqa: ANN202 (trimesh.Trimesh)
     return mesh
 
 
+def _coordinates_problem(values: np.ndarray, field: str, name: str, p: Problems) -> bool:
+    """True after recording a problem at `field`: coordinates (read from a file, or a
+    grid's nodes) that are not finite or lie beyond ±MAX_COORDINATE m, the bound of the
+    scene's own points."""
+    with np.errstate(all="ignore"):
+        a = np.asarray(values, float)
+    if not np.all(np.isfinite(a)):
+        p.add(field, f"{name}: a coordinate is not a finite number")
+        return True
+    if a.size and float(np.abs(a).max()) > MAX_COORDINATE:
+        p.add(field, f"{name}: coordinates must lie within ±{MAX_COORDINATE:g} m "
+              f"(got {float(np.abs(a).max()):g})")
+        return True
+    return False
+
+
 def _self_intersections(vertices: np.ndarray, faces: np.ndarray) -> int:
     """How many pairs of triangles that share no vertex cross each other (an edge of one
     passes through the other)."""
@@ -245,7 +259,7 @@ def _edges_cross(a: np.ndarray, b: np.ndarray, tol: float) -> bool:
 def _closed_mesh(src: _Source, p: Problems) -> tuple[np.ndarray, np.ndarray] | None:
     """Vertices and triangles of a closed, outward, non-self-intersecting mesh."""
     mesh = _load_mesh(src, p)
-    if mesh is None:
+    if mesh is None or _coordinates_problem(mesh.vertices, src.field, src.name, p):
         return None
     if not mesh.is_watertight:
         p.add(src.field, f"{src.name}: the mesh is open (it has edges with one triangle): a "
@@ -270,7 +284,7 @@ def _mesh_heights(src: _Source, spacing: float, p: Problems
     """A surface mesh sampled on a grid of `spacing` m over its footprint (vertical lines
     through each node; the highest crossing, NaN where none)."""
     mesh = _load_mesh(src, p)
-    if mesh is None:
+    if mesh is None or _coordinates_problem(mesh.vertices, src.field, src.name, p):
         return None
     v, f = np.asarray(mesh.vertices, float), np.asarray(mesh.faces, np.int64)
     lo, hi = v.min(axis=0), v.max(axis=0)
@@ -325,26 +339,40 @@ def _grid(spec: TerrainSpec, loc: str, base_dir: Path | None, p: Problems
             p.add(f"{loc}.grid.elevations", "every row must have as many values")
             return None, f"{loc}.grid.elevations", "the grid"
         z = np.asarray(rows, float)
-        return ((g.x0 + g.dx * np.arange(z.shape[1]), g.y0 + g.dy * np.arange(z.shape[0]),
-                 z), f"{loc}.grid.elevations", "the grid")
+        x, y = g.x0 + g.dx * np.arange(z.shape[1]), g.y0 + g.dy * np.arange(z.shape[0])
+        if _coordinates_problem(np.concatenate([x, y]), f"{loc}.grid", "the grid's nodes", p):
+            return None, f"{loc}.grid.elevations", "the grid"
+        return (x, y, z), f"{loc}.grid.elevations", "the grid"
     src = _Source(spec, loc, base_dir, p)
     if src.text is None:
         return None, src.field, src.name
+    grid = _read_grid(spec, src, p)
+    if grid is not None:
+        x, y, z = grid
+        nodes = np.concatenate([x, y, z[np.isfinite(z)]])
+        if _coordinates_problem(nodes, src.field, src.name, p):
+            return None, src.field, src.name
+    return grid, src.field, src.name
+
+
+def _read_grid(spec: TerrainSpec, src: _Source, p: Problems
+               ) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
+    """The grid of a terrain's file or inline data (None after a problem)."""
     if src.fmt in ("stl", "obj", "ply"):
         if spec.grid_spacing is None:
-            p.add(f"{loc}.grid_spacing", "a terrain given as a surface mesh needs "
+            p.add(f"{src.loc}.grid_spacing", "a terrain given as a surface mesh needs "
                   "'grid_spacing' (m) to sample it on")
-            return None, src.field, src.name
-        return _mesh_heights(src, spec.grid_spacing, p), src.field, src.name
+            return None
+        return _mesh_heights(src, spec.grid_spacing, p)
     try:
         reader = read_esri_ascii if src.fmt == "asc" else read_xyz_csv
         if src.fmt not in ("asc", "csv"):
             raise ValueError(f"unknown format '{src.fmt}' (asc, csv, stl, obj or ply)")
         with np.errstate(all="ignore"):
-            return reader(src.text), src.field, src.name
+            return reader(src.text)
     except (ValueError, IndexError) as exc:  # what numpy's text reader raises on bad text
         p.add(src.field, f"{src.name}: not a readable {src.fmt} grid ({exc})")
-        return None, src.field, src.name
+        return None
 
 
 def terrain_domain(spec: TerrainSpec, loc: str, base_dir: Path | None, p: Problems

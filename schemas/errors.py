@@ -57,6 +57,10 @@ def fmt_num(value: Any) -> str:
         return repr(value)
     if isinstance(value, float) and not math.isfinite(value):
         return str(value)
+    if isinstance(value, int) and abs(value) >= 10**15:  # exactly, beyond any float too
+        digits = str(abs(value))
+        mantissa = (digits[0] + "." + digits[1:10]).rstrip("0").rstrip(".")
+        return f"{'-' if value < 0 else ''}{mantissa}e+{len(digits) - 1:02d}"
     return format(value, ".10g")
 
 
@@ -178,6 +182,14 @@ def _message(err: dict[str, Any], root: type[BaseModel] | None) -> str:
         return f"must be true or false, got {_got(value)}"
     if kind in ("string_type",):
         return f"must be text, got {_got(value)}"
+    if kind == "string_pattern_mismatch":
+        return "must be printable text on one line (no control characters such as NUL)"
+    if kind in ("string_too_short", "string_too_long"):
+        lo, hi = ctx.get("min_length"), ctx.get("max_length")
+        if kind == "string_too_short":
+            return f"must have at least {lo} character{'s' if lo != 1 else ''}"
+        return f"may have at most {hi:,} characters, got {len(value):,}" if isinstance(
+            value, str) else f"may have at most {hi:,} characters"
     if kind in ("list_type", "tuple_type"):
         return f"must be a list [...], got {_got(value)}"
     if kind in ("dict_type", "model_type", "model_attributes_type"):

@@ -18,7 +18,6 @@ from pydantic import (
     AliasChoices,
     BaseModel,
     BeforeValidator,
-    ConfigDict,
     Field,
     ValidationError,
     model_validator,
@@ -42,6 +41,7 @@ from schemas.errors import (
     format_loc,
     from_validation_error,
 )
+from schemas.fields import Label, Length, Name, Point, StrictModel
 from schemas.stages import ExcavationSpec, StageSpec
 
 #: version of the scene format; a scene may state it as ``"schema_version"``
@@ -102,7 +102,6 @@ Ratio01 = _between(0, 1, "")
 Azimuth = _between(0, 360, "degrees")
 SeismicCoefficient = _between(0, 5, "")
 VerticalSeismicCoefficient = _between(-5, 5, "")
-Name = Annotated[str, Field(min_length=1, max_length=100)]
 
 
 def _name_to_selection(value: Any) -> Any:
@@ -110,8 +109,8 @@ def _name_to_selection(value: Any) -> Any:
     return {"name": value} if isinstance(value, str) else value
 
 
-class _Model(BaseModel):
-    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
+class _Model(StrictModel):
+    """A part of the scene (strict JSON types: schemas.fields)."""
 
 
 def _exactly_one(obj: BaseModel, names: tuple[str, ...]) -> None:
@@ -151,8 +150,8 @@ class JointMaterialSpec(_Model):
 class BoxSpec(_Model):
     """An axis-aligned box from `min` to `max` (m)."""
 
-    min: Vec3
-    max: Vec3
+    min: Point
+    max: Point
 
     @model_validator(mode="after")
     def _ordered(self) -> BoxSpec:
@@ -168,7 +167,7 @@ class BoxSpec(_Model):
 class PolyhedronSpec(_Model):
     """A closed polyhedron: vertices and faces (vertex indices, counter-clockwise from outside)."""
 
-    vertices: list[Vec3]
+    vertices: list[Point]
     faces: list[list[Annotated[int, Field(ge=0)]]]
 
 
@@ -208,8 +207,8 @@ class DomainSpec(_Model):
 class DiscSpec(_Model):
     """A circular joint of `radius` (m) about `center` (default: the joint's point)."""
 
-    radius: Positive
-    center: Vec3 | None = None
+    radius: Length
+    center: Point | None = None
     sides: Annotated[int, Field(ge=3, le=256)] = Field(
         24, description="polygon sides used for the disc"
     )
@@ -218,7 +217,7 @@ class DiscSpec(_Model):
 class ExtentSpec(_Model):
     """Where a non-persistent joint exists: a convex `polygon` in its plane or a `disc`."""
 
-    polygon: Annotated[list[Vec3], Field(min_length=3)] | None = None
+    polygon: Annotated[list[Point], Field(min_length=3)] | None = None
     disc: DiscSpec | None = None
 
     @model_validator(mode="after")
@@ -236,8 +235,8 @@ class JointSpec(_Model):
     name: Name | None = Field(None, description="default J1, J2, ... by position")
     dip: Dip = Field(description="degrees, 0 to 90")
     dip_direction: DipDirection = Field(description="degrees clockwise from North")
-    point: Vec3 = Field(description="a point on the plane (m)")
-    spacing: Positive | None = Field(None, description="m; makes this a joint set")
+    point: Point = Field(description="a point on the plane (m)")
+    spacing: Length | None = Field(None, description="m; makes this a joint set")
     extent: ExtentSpec | None = None
     joint_material: Name | None = Field(None, description="default joint material if omitted")
 
@@ -256,7 +255,7 @@ class BlockSpec(_Model):
     """
 
     name: Name | None = Field(None, description="default block1, block2, ... by position")
-    vertices: list[Vec3]
+    vertices: list[Point]
     faces: list[list[Annotated[int, Field(ge=0)]]]
     material: Name | None = None
     fixed: bool = False
@@ -271,7 +270,7 @@ class Selection(_Model):
     in the box `centroid_in`. A bare string means a name."""
 
     name: Name | None = None
-    contains: Vec3 | None = None
+    contains: Point | None = None
     centroid_in: BoxSpec | None = None
 
     @model_validator(mode="after")
@@ -295,14 +294,14 @@ class BlockPairSpec(_Model):
 class FixedPointSpec(_Model):
     """A point of a block held in place by a stiff spring (block default: the one at `point`)."""
 
-    point: Vec3
+    point: Point
     block: Target | None = None
 
 
 class PointLoadSpec(_Model):
     """A force (N) at a point of a block (block default: the one at `point`)."""
 
-    point: Vec3
+    point: Point
     force: Vec3
     block: Target | None = None
 
@@ -347,8 +346,8 @@ class BoltSpec(_BoltProperties):
     or the ground (a point that never moves) when no block contains it."""
 
     name: Name | None = Field(None, description="default bolt1, bolt2, ... by position")
-    head: Vec3 = Field(description="m, where the bolt's plate bears on the block")
-    anchor: Vec3 = Field(description="m, the anchored end")
+    head: Point = Field(description="m, where the bolt's plate bears on the block")
+    anchor: Point = Field(description="m, the anchored end")
     block: Target | None = Field(None, description="the head's block (default: the block "
                                                    "at `head`)")
     anchor_block: Target | None = Field(None, description="the anchor's block (default: "
@@ -361,15 +360,15 @@ class BoltPatternSpec(_BoltProperties):
     long, pointing into the rock along `trend` / `plunge` (degrees; plunge positive down).
     Bolts are named `name_prefix` + 1, 2, ..."""
 
-    origin: Vec3 = Field(description="m, the head of the first bolt (on the face)")
+    origin: Point = Field(description="m, the head of the first bolt (on the face)")
     face_normal: Vec3 = Field(description="outward normal of the face the heads are on")
     row_direction: Vec3 = Field(description="a direction in the face along which a row runs")
-    spacing: Positive = Field(description="m between bolts along a row")
-    row_spacing: Positive | None = Field(None, description="m between rows (default: "
+    spacing: Length = Field(description="m between bolts along a row")
+    row_spacing: Length | None = Field(None, description="m between rows (default: "
                                                            "spacing)")
     rows: Annotated[int, Field(ge=1, le=1000)] = 1
     columns: Annotated[int, Field(ge=1, le=1000)] = Field(1, description="bolts per row")
-    length: Positive = Field(description="m, head to anchor")
+    length: Length = Field(description="m, head to anchor")
     trend: Azimuth = Field(description="degrees clockwise from North of the bolt's "
                                        "direction into the rock")
     plunge: _between(-90, 90, "degrees") = Field(description="degrees below horizontal of "
@@ -397,7 +396,7 @@ class PhreaticSurfaceSpec(_Model):
     """The water table as a plane: below it the joints hold water at hydrostatic pressure
     γw·(depth below the plane, measured vertically)."""
 
-    point: Vec3 = Field(description="m, a point on the water table")
+    point: Point = Field(description="m, a point on the water table")
     dip: _between(0, 90, "degrees", hi_open=True) = Field(
         0.0, description="degrees, 0 (horizontal) to less than 90")
     dip_direction: DipDirection = Field(0.0, description="degrees clockwise from North")
@@ -829,9 +828,10 @@ class Scene(_Model):
     """A DDA scene: materials, blocks (cut from a domain by joints, and/or explicit),
     boundary conditions, gravity and the analysis to run."""
 
-    schema_version: str = Field(SCHEMA_VERSION, description="scene format version")
-    name: str = "scene"
-    description: str = ""
+    schema_version: Annotated[str, Field(max_length=20)] = Field(
+        SCHEMA_VERSION, description="scene format version")
+    name: Label = "scene"
+    description: Annotated[str, Field(max_length=20_000)] = ""
     materials: dict[Name, MaterialSpec] = Field(
         default_factory=dict,
         description="by name; none given: one granite-like 'rock' (2600 kg/m³, 10 GPa, 0.25)",
@@ -1051,8 +1051,9 @@ def scene_problems(scene: Scene) -> list[dict[str, str]]:
         p.add("", "the scene has no blocks: give a 'domain' (cut by 'joints') or 'blocks'")
 
     seen: dict[str, int] = {}
+    raw = {"joints": _raw_names(scene.joints), "blocks": _raw_names(scene.blocks)}  # once
     for k, j in enumerate(scene.joints):
-        loc = format_loc(("joints", k), {"joints": _raw_names(scene.joints)})
+        loc = format_loc(("joints", k), raw)
         joint_material(f"{loc}.joint_material", j.joint_material)
         name = scene.joint_name(k)
         if name in seen:
@@ -1061,7 +1062,7 @@ def scene_problems(scene: Scene) -> list[dict[str, str]]:
 
     seen = {}
     for k, b in enumerate(scene.blocks):
-        loc = format_loc(("blocks", k), {"blocks": _raw_names(scene.blocks)})
+        loc = format_loc(("blocks", k), raw)
         material(f"{loc}.material", b.material)
         name = scene.block_name(k)
         if name in seen:

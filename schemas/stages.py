@@ -12,17 +12,15 @@ from typing import Annotated, Literal
 
 from pydantic import Field, model_validator
 
-from schemas.domains import Positive, _exactly_one, _Model
+from schemas.domains import _exactly_one, _Model
+from schemas.fields import Length, Name, Point, Point2
 
 # BoxSpec, GroundMotionSpec, JointMaterialSpec, SeismicSpec, Target and WaterSpec are the
 # scene's own: scene.py resolves them (`model_rebuild`) once it has defined them
-Name = Annotated[str, Field(min_length=1, max_length=100)]
-Vec3 = Annotated[list[float], Field(min_length=3, max_length=3)]
+Positive = Annotated[float, Field(gt=0)]
 Azimuth = Annotated[float, Field(ge=0, le=360)]
 Plunge = Annotated[float, Field(ge=-90, le=90)]
 DipDirection = Annotated[float, Field(ge=-360, le=360)]
-
-Point2 = Annotated[list[float], Field(min_length=2, max_length=2)]
 
 
 class TunnelSpec(_Model):
@@ -30,18 +28,18 @@ class TunnelSpec(_Model):
     `start` along `trend` / `plunge` over `length`, or the polyline `axis`."""
 
     shape: Literal["circular", "horseshoe", "d_shaped"] = "circular"
-    width: Positive = Field(description="m: the diameter of a circular tunnel, the span of "
+    width: Length = Field(description="m: the diameter of a circular tunnel, the span of "
                                         "the others")
-    height: Positive | None = Field(None, description="m, D-shaped: floor to crown "
+    height: Length | None = Field(None, description="m, D-shaped: floor to crown "
                                                       "(default: the width)")
     sides: Annotated[int, Field(ge=6, le=128)] = Field(
         16, description="vertices of a circular section (arcs get about half as many)")
-    start: Vec3 | None = Field(None, description="m, the invert's centre at the portal")
+    start: Point | None = Field(None, description="m, the invert's centre at the portal")
     trend: Azimuth | None = Field(None, description="degrees clockwise from North")
     plunge: Plunge = Field(0.0, description="degrees below "
                                                                   "horizontal")
-    length: Positive | None = Field(None, description="m along the axis")
-    axis: Annotated[list[Vec3], Field(min_length=2, max_length=1000)] | None = Field(
+    length: Length | None = Field(None, description="m along the axis")
+    axis: Annotated[list[Point], Field(min_length=2, max_length=1000)] | None = Field(
         None, description="m, the invert's centre line as a polyline (instead of start, "
                           "trend, plunge, length)")
 
@@ -59,8 +57,8 @@ class TunnelSpec(_Model):
 class CavernSpec(_Model):
     """A box-shaped cavern or chamber: `size` = length along `trend`, width, height (m)."""
 
-    center: Vec3
-    size: Annotated[list[Positive], Field(min_length=3, max_length=3)]
+    center: Point
+    size: Annotated[list[Length], Field(min_length=3, max_length=3)]
     trend: Azimuth = 0.0
 
 
@@ -72,7 +70,7 @@ class BenchSpec(_Model):
 
     section: Annotated[list[Point2], Field(min_length=3, max_length=1000)]
     dip_direction: DipDirection
-    width: Positive
+    width: Length
     origin: Point2 = Field(default_factory=lambda: [0.0, 0.0])
 
 

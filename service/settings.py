@@ -2,7 +2,8 @@
 
 Example: `POLYDDA_DATA_DIR=/data POLYDDA_BACKEND=rq POLYDDA_REDIS_URL=redis://redis:6379/0`.
 `POLYDDA_API_KEYS`, `POLYDDA_ADMIN_KEYS` and `POLYDDA_CORS_ORIGINS` are comma-separated
-lists (empty API keys: no key needed, and every client sees only the jobs of its address).
+lists (empty API keys: no key needed, and every client sees only the jobs of its address;
+`polydda serve` then listens on loopback only, unless POLYDDA_ALLOW_OPEN_NETWORK=true).
 """
 
 from __future__ import annotations
@@ -76,6 +77,30 @@ class Settings(BaseSettings):
                               description="runs of a job whose worker or service was lost "
                                           "while it ran (then it fails, kind system)")
     job_timeout: int = Field(7 * 24 * 3600, ge=1, description="RQ job timeout (s)")
+    validation_workers: int = Field(
+        1, ge=1, description="processes that check submitted scenes' geometry (cutting, "
+                             "closure, overlaps) apart from the API process")
+    validation_timeout: float = Field(
+        120.0, gt=0, description="s a scene's geometry check may take; a scene that takes "
+                                 "longer is refused (422)")
+    validation_budget: float = Field(
+        120.0, gt=0, description="s of geometry checking per client per minute (a client "
+                                 "over it gets 429 until its budget refills)")
+    auth_failures: int = Field(
+        10, ge=1, description="wrong API keys an address may send per minute; beyond, its "
+                              "requests with a key get 429 until the minute has passed")
+    s3_bucket: str = Field(
+        "", description="S3-compatible bucket for job results (RQ workers upload a job's "
+                        "files when it ends; the API streams them); empty: results stay in "
+                        "the data directory")
+    s3_prefix: str = Field("polydda/", description="key prefix of the results in the bucket")
+    s3_endpoint_url: str = Field("", description="S3 endpoint (MinIO: http://minio:9000); "
+                                                 "empty: AWS")
+    s3_region: str = Field("", description="S3 region (empty: boto3's default)")
+    allow_open_network: bool = Field(
+        False, description="let `polydda serve` listen beyond loopback without API keys "
+                           "(every client on the network may then submit jobs; each sees "
+                           "only the jobs of its own address)")
 
     @field_validator("api_keys", "admin_keys", mode="before")
     @classmethod

@@ -234,13 +234,13 @@ class RedisServer:
 class Server:
     """`polydda serve` (the image's command) in a subprocess on a free loopback port."""
 
-    def __init__(self, data_dir: Path, **env: str) -> None:
+    def __init__(self, data_dir: Path, log_dir: Path | None = None, **env: str) -> None:
         self.data_dir = data_dir
         self.port = free_port()
         self.url = f"http://127.0.0.1:{self.port}"
         self.env = {**os.environ, "POLYDDA_DATA_DIR": str(data_dir), **env}
         self.proc: subprocess.Popen[bytes] | None = None
-        self.log = data_dir.parent / f"server-{self.port}.log"
+        self.log = (log_dir or data_dir.parent) / f"server-{self.port}.log"
 
     def start(self, timeout: float = 30.0) -> Server:
         with open(self.log, "ab") as log:
@@ -280,11 +280,12 @@ class Server:
 
 
 def synthetic_job(data_dir: Path, n_blocks: int = 1000, n_steps: int = 100,
-                  contacts: bool = True) -> tuple[str, Path]:
+                  contacts: bool = True, client: str = "ip:testclient") -> tuple[str, Path]:
     """A successful simulation job of `n_blocks` moving cubes and `n_steps` recorded steps
     (made-up frames of benchmarks.bench_results, ~6 contacts per block unless not
     `contacts`, written by the engine's ResultWriter), put straight into the job table of
-    `data_dir`; `(job id, its result.h5)`."""
+    `data_dir`, owned by `client` (without keys a client is its address: `ip:testclient`
+    for a TestClient, `ip:127.0.0.1` for a real server); `(job id, its result.h5)`."""
     from benchmarks.bench_results import FrameSource, grid_model
     from engine.results.writer import ResultWriter
     from service.jobs.store import JobStore
@@ -294,7 +295,7 @@ def synthetic_job(data_dir: Path, n_blocks: int = 1000, n_steps: int = 100,
     data_dir.mkdir(parents=True, exist_ok=True)
     store = JobStore(settings.db_path)
     job, _ = store.submit(process="simulation", scene='{"name": "synthetic"}',
-                          client="ip:127.0.0.1", quota=10**6)
+                          client=client, quota=10**6)
     path = settings.job_dir(job.id) / "result.h5"
     path.parent.mkdir(parents=True)
     model = grid_model(n_blocks)

@@ -31,6 +31,8 @@ def test_docs_page_renders_in_headless_chromium(tmp_path: Path) -> None:
         try:
             page = browser.new_page()
             page.on("requestfailed", lambda r: failed.append(f"{r.url} {r.failure}"))
+            page.on("console", lambda m: failed.append(f"csp: {m.text}")
+                    if "Content Security Policy" in m.text else None)
             page.on("request", lambda r: outside.append(r.url)
                     if not r.url.startswith(server.url) and not r.url.startswith("data:")
                     else None)

@@ -218,11 +218,16 @@ def test_docker_files_run_the_commands_these_tests_run() -> None:
     settings = set(Settings.model_fields)
     for name in ("api", "worker"):
         variables = services[name]["environment"]
-        assert {k.removeprefix("POLYDDA_").lower() for k in variables} <= settings, variables
+        ours = {k.removeprefix("POLYDDA_").lower() for k in variables if k.startswith("POLYDDA_")}
+        assert ours <= settings, variables
+        assert set(variables) - {f"POLYDDA_{k.upper()}" for k in ours} <= {
+            "AWS_ACCESS_KEY_ID", "AWS_SECRET_ACCESS_KEY", "AWS_DEFAULT_REGION"}, variables
         assert variables["POLYDDA_BACKEND"] == "rq"
         assert variables["POLYDDA_REDIS_URL"].startswith("redis://redis:")
         assert variables["POLYDDA_DATA_DIR"] == "/data"
-        assert services[name]["volumes"] == ["results:/data"]
+    # the job table on the API's volume; workers keep a job's files until it is uploaded
+    assert services["api"]["volumes"] == ["api:/data"]
+    assert services["worker"]["volumes"] == ["/data"]
 
 
 def test_a_second_server_on_the_same_data_directory_is_refused(tmp_path: Path) -> None:

@@ -41,7 +41,8 @@ def served(tmp_path_factory: pytest.TempPathFactory) -> Iterator[tuple[Server, s
         pytest.skip("Debian's chromium is not installed (apt-get install chromium)")
     sync_api = pytest.importorskip("playwright.sync_api")
     data = tmp_path_factory.mktemp("viewer-browser") / "data"
-    big, _ = synthetic_job(data, n_blocks=1000, n_steps=100, contacts=False)
+    big, _ = synthetic_job(data, n_blocks=1000, n_steps=100, contacts=False,
+                           client="ip:127.0.0.1")
     with Server(data) as server, sync_api.sync_playwright() as pw:
         with httpx.Client(base_url=server.url, timeout=30) as client:
             r = client.post("/jobs", json=wedge_scene(0.2))
@@ -56,8 +57,8 @@ def served(tmp_path_factory: pytest.TempPathFactory) -> Iterator[tuple[Server, s
 
 
 def open_page(served: Any, path: str) -> tuple[Any, list[str]]:
-    """A new 1200x800 page at `path`; the list collects failed, outside requests and
-    script errors."""
+    """A new 1200x800 page at `path`; the list collects failed, outside requests, script
+    errors and CSP violations."""
     server, _, _, browser = served
     page = browser.new_page(viewport={"width": 1200, "height": 800})
     bad: list[str] = []
@@ -65,8 +66,25 @@ def open_page(served: Any, path: str) -> tuple[Any, list[str]]:
     page.on("request", lambda r: bad.append(f"outside {r.url}")
             if not r.url.startswith(server.url) and not r.url.startswith("data:") else None)
     page.on("pageerror", lambda e: bad.append(f"error {e}"))
+    # the page's Content-Security-Policy (service.api.middleware) blocks nothing it needs
+    page.on("console", lambda m: bad.append(f"csp {m.text}")
+            if "Content Security Policy" in m.text else None)
     page.goto(server.url + path)
     return page, bad
+
+
+def wait_js(page: Any, expression: str, timeout: float = 30_000) -> Any:
+    """Poll `expression` in the page until it is truthy (`timeout` ms). Not
+    page.wait_for_function: its predicate is a string the page's CSP refuses to eval."""
+    deadline = time.monotonic() + timeout / 1000
+    while True:
+        value = page.evaluate(expression)
+        if value:
+            return value
+        if time.monotonic() > deadline:
+            raise AssertionError(f"timed out after {timeout / 1000:g} s waiting for "
+                                 f"{expression}")
+        time.sleep(0.05)
 
 
 def shot(page: Any, name: str, **kw: Any) -> None:
@@ -78,15 +96,15 @@ def test_wedge_viewer_draws_animates_and_picks(served: Any) -> None:
     _, job, _, _ = served
     page, bad = open_page(served, f"/jobs/{job}/viewer")
     try:
-        page.wait_for_function("window.polydda && window.polydda.ready", timeout=20_000)
+        wait_js(page, "window.polydda && window.polydda.ready", timeout=20_000)
         st = page.evaluate("({n: polydda.blockCount, start: polydda.startFrame,"
                            " m: polydda.frameCount, lit: polydda.litPixels()})")
         assert st["n"] == 2  # the wedge and its base
         assert st["m"] == 21 and st["start"] == 0  # step 0 and every 10th; opens at step 0
         assert st["lit"] > 20_000  # pixels of the 1200x~700 canvas that are not background
         # ... and plays the run through once, to its last frame, then stops
-        page.wait_for_function("polydda.playing || polydda.framesPlayed > 0", timeout=5_000)
-        page.wait_for_function("!polydda.playing && polydda.frame === 20", timeout=20_000)
+        wait_js(page, "polydda.playing || polydda.framesPlayed > 0", timeout=5_000)
+        wait_js(page, "!polydda.playing && polydda.frame === 20", timeout=20_000)
         assert page.evaluate("polydda.framesPlayed") == 20
         assert page.inner_text("#play") == "Play"
         assert "step 200 " in page.inner_text("#frame-label")
@@ -114,10 +132,10 @@ def test_wedge_viewer_draws_animates_and_picks(served: Any) -> None:
             page.click("#save")
         assert download.value.suggested_filename.endswith("-step200.png")
         page.check("#contacts")  # contacts of every frame are fetched on demand
-        page.wait_for_function("polydda.frame === 20 && polydda.contactsShown >= 1",
-                               timeout=10_000)
+        wait_js(page, "polydda.frame === 20 && polydda.contactsShown >= 1",
+                timeout=10_000)
         page.click("#play")
-        page.wait_for_function("polydda.frame >= 2 && polydda.frame < 20", timeout=10_000)
+        wait_js(page, "polydda.frame >= 2 && polydda.frame < 20", timeout=10_000)
     finally:
         page.close()
     assert bad == []
@@ -138,13 +156,13 @@ def test_contacts_toggle_shows_the_steps_contacts_and_forces(served: Any) -> Non
                                                                        "sliding"))}
     page, bad = open_page(served, f"/jobs/{job}/viewer")
     try:
-        page.wait_for_function("window.polydda && window.polydda.ready", timeout=20_000)
-        page.wait_for_function("!polydda.playing && polydda.frame === polydda.frameCount - 1",
-                               timeout=20_000)  # played through to the last step
+        wait_js(page, "window.polydda && window.polydda.ready", timeout=20_000)
+        wait_js(page, "!polydda.playing && polydda.frame === polydda.frameCount - 1",
+                timeout=20_000)  # played through to the last step
         assert page.inner_text("#contact-count") == ""
         assert page.evaluate("polydda.contactCount") is None
         page.check("#contacts")
-        page.wait_for_function("polydda.contactCount != null", timeout=10_000)
+        wait_js(page, "polydda.contactCount != null", timeout=10_000)
         n = len(last["mode"])
         assert n > 0 and page.evaluate("polydda.contactCount") == n
         assert page.evaluate("polydda.contactModes") == modes
@@ -170,7 +188,7 @@ def test_viewer_strides_long_results(served: Any) -> None:
     _, job, _, _ = served
     page, bad = open_page(served, f"/jobs/{job}/viewer?max_frames=5&play=false")
     try:
-        page.wait_for_function("window.polydda && window.polydda.ready", timeout=20_000)
+        wait_js(page, "window.polydda && window.polydda.ready", timeout=20_000)
         assert page.evaluate("polydda.frame") == 0 and not page.evaluate("polydda.playing")
         page.focus("#slider")
         page.keyboard.press("End")
@@ -221,7 +239,7 @@ def test_thousand_blocks_open_in_under_3_s(served: Any) -> None:
     try:
         t0 = time.perf_counter()
         page.goto(served[0].url + f"/jobs/{big}/viewer?play=false")
-        page.wait_for_function("window.polydda && window.polydda.ready", timeout=30_000)
+        wait_js(page, "window.polydda && window.polydda.ready", timeout=30_000)
         wall = time.perf_counter() - t0
         st = page.evaluate("({n: polydda.blockCount, m: polydda.frameCount,"
                            " ms: polydda.loadMs, open: polydda.readyMs,"
@@ -248,15 +266,15 @@ def test_viewer_follows_a_running_job(served: Any) -> None:
             "Location"]
         page, bad = open_page(served, url.removeprefix(server.url) + "/viewer")
         try:
-            page.wait_for_function("window.polydda && window.polydda.ready", timeout=30_000)
+            wait_js(page, "window.polydda && window.polydda.ready", timeout=30_000)
             first = page.evaluate("polydda.frameCount")
             assert page.evaluate("polydda.status") == "running"
             # a live job is shown at its newest step (the "follow" box), not played from
             # its start: playback at 15 frames a second would fall behind the run
             assert not page.evaluate("polydda.playing")
             # new steps arrive by polling and the view moves to the newest
-            page.wait_for_function(f"polydda.frameCount >= {first} + 2 && "
-                                   "polydda.frame === polydda.frameCount - 1", timeout=20_000)
+            wait_js(page, f"polydda.frameCount >= {first} + 2 && "
+                    "polydda.frame === polydda.frameCount - 1", timeout=20_000)
             assert page.evaluate("polydda.blockCount") == 2
         finally:
             page.close()
@@ -305,7 +323,7 @@ def test_viewer_triad_north_arrow_and_scale_bar(served: Any) -> None:
     _, job, _, _ = served
     page, bad = open_page(served, f"/jobs/{job}/viewer?play=false")
     try:
-        page.wait_for_function("window.polydda && window.polydda.ready", timeout=20_000)
+        wait_js(page, "window.polydda && window.polydda.ready", timeout=20_000)
         right, up = _view_basis([-0.45, -0.8, 0.45])  # the viewer's first camera
         triad = page.evaluate("polydda.triad")
         for name, axis in (("E", [1, 0, 0]), ("N", [0, 1, 0]), ("Up", [0, 0, 1])):
@@ -375,8 +393,8 @@ def test_home_page_uploads_a_scene_that_completes(served: Any, tmp_path: Path) -
     try:
         assert page.is_visible("#upload-form")
         _upload(page, tmp_path / "bad.json", "simulation")
-        page.wait_for_function("document.getElementById('upload-status').textContent"
-                               ".startsWith('422')", timeout=10_000)
+        wait_js(page, "document.getElementById('upload-status').textContent"
+                ".startsWith('422')", timeout=10_000)
         assert "joint_materials.joint.friction_angle" in page.inner_text("#upload-problems")
         _upload(page, tmp_path / "wedge.json", "simulation")
         page.wait_for_selector("#jobs tr:has-text('uploaded_wedge')", timeout=15_000)
@@ -405,6 +423,9 @@ def test_home_page_upload_with_api_keys(served: Any, tmp_path: Path) -> None:
     (tmp_path / "cube.json").write_text(json.dumps(cube_scene(duration=0.02)))
     with Server(tmp_path / "data", POLYDDA_API_KEYS="secret-key") as server:
         page = browser.new_page(viewport={"width": 1200, "height": 800})
+        csp: list[str] = []
+        page.on("console", lambda m: csp.append(m.text)
+                if "Content Security Policy" in m.text else None)
         try:
             page.goto(server.url + "/")
             page.fill("#key", "secret-key")
@@ -419,3 +440,4 @@ def test_home_page_upload_with_api_keys(served: Any, tmp_path: Path) -> None:
             assert r.status_code == 401
         finally:
             page.close()
+        assert csp == []

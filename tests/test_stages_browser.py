@@ -14,7 +14,7 @@ import pytest
 
 from tests.excavation_scenes import roof_wedge_scene
 from tests.service_helpers import Server, wait_final
-from tests.test_service_viewer_browser import ARGS, CHROMIUM
+from tests.test_service_viewer_browser import ARGS, CHROMIUM, wait_js
 
 
 @pytest.fixture(scope="module")
@@ -41,10 +41,13 @@ def test_viewer_shows_the_stages(staged: Any) -> None:
     page = browser.new_page(viewport={"width": 1200, "height": 800})
     errors: list[str] = []
     page.on("pageerror", lambda e: errors.append(str(e)))
+    # the page's Content-Security-Policy (service.api.middleware) blocks nothing it needs
+    page.on("console", lambda m: errors.append(f"csp {m.text}")
+            if "Content Security Policy" in m.text else None)
     try:
         # a finished run opens at its first frame and plays: stay, then go to its end
         page.goto(f"{server.url}/jobs/{job}/viewer?play=false")
-        page.wait_for_function("window.polydda && window.polydda.ready", timeout=20_000)
+        wait_js(page, "window.polydda && window.polydda.ready", timeout=20_000)
         assert "stage settle" in page.inner_text("#frame-label")
         page.focus("#slider")
         page.keyboard.press("End")

@@ -8,9 +8,12 @@ directory). Run with `serve(host, port)` or `uvicorn --factory service.api.app:c
 
 from __future__ import annotations
 
+import asyncio
 import logging
+import sqlite3
 import sys
 from collections.abc import AsyncIterator
+from concurrent.futures import ThreadPoolExecutor
 from contextlib import asynccontextmanager
 from pathlib import Path
 from typing import Any, Literal
@@ -19,9 +22,11 @@ from fastapi import FastAPI, Request
 from fastapi.middleware.cors import CORSMiddleware
 from fastapi.responses import HTMLResponse, JSONResponse, Response
 from fastapi.staticfiles import StaticFiles
+from prometheus_client import CollectorRegistry
 from starlette.concurrency import run_in_threadpool
 
-from service.api.dependencies import BackendDep, RateLimiter, RootDep, StoreDep, _client
+from service.api.dependencies import RateLimiter, RootDep, StoreDep, _client
+from service.api.middleware import ErrorBoundary, HeadAsGet, RequestMetrics, SecurityHeaders
 from service.api.openapi import openapi_builder
 from service.api.problems import Problem, install_handlers
 from service.api.routes import router
@@ -35,6 +40,8 @@ from service.settings import Settings
 log = logging.getLogger(__name__)
 
 STATIC_DIR = Path(__file__).parents[1] / "static"
+#: /health's own threads (the job table and the queue asked apart from other requests)
+_HEALTH_THREADS = ThreadPoolExecutor(2, thread_name_prefix="polydda-health")
 VERSION = "0.1.0"
 _DOCS_HTML = """<!doctype html>
 <html lang="en"><head><meta charset="utf-8"><title>PolyDDA API</title>
@@ -54,6 +61,23 @@ def make_backend(settings: Settings, store: JobStore) -> Backend:
     return EmbeddedBackend(settings, store)
 
 
+def _submission_state(app: FastAPI, settings: Settings) -> None:
+    """What submissions share: the scene-checking pool and its thread limiter, the
+    structure checks' limiter, the clients' checking budgets and in-flight counts."""
+    import anyio
+
+    from service.api.submission import InFlight
+    from service.api.validation import ValidationBudget, shared_pool
+
+    app.state.validation_pool = shared_pool(settings.validation_workers,
+                                            settings.worker_env(), settings.worker_nice)
+    app.state.validation_limiter = anyio.CapacityLimiter(settings.validation_workers)
+    app.state.validation_threads = anyio.CapacityLimiter(settings.validation_workers)
+    app.state.structure_limiter = anyio.CapacityLimiter(2)
+    app.state.validation_budget = ValidationBudget(settings.validation_budget)
+    app.state.in_flight = InFlight()
+
+
 def create_app(settings: Settings | None = None, lock: DataDirLock | None = None) -> FastAPI:
     """The FastAPI application. Its lifespan takes the data directory's lock (unless `lock`
     is held already), opens the job table and starts the backend."""
@@ -66,13 +90,16 @@ def create_app(settings: Settings | None = None, lock: DataDirLock | None = None
             store = JobStore(settings.db_path)
             backend = make_backend(settings, store)
             app.state.store, app.state.backend = store, backend
-            from service.api.metrics import make_registry
+            from service.api.metrics import JobCollector
 
-            app.state.metrics = make_registry(store, backend)
+            jobs = JobCollector(store, backend)
+            app.state.metrics.register(jobs)
+            _submission_state(app, settings)
             await run_in_threadpool(backend.start)
             try:
                 yield
             finally:
+                app.state.metrics.unregister(jobs)
                 await run_in_threadpool(backend.stop)
         finally:
             held.release()
@@ -84,14 +111,21 @@ def create_app(settings: Settings | None = None, lock: DataDirLock | None = None
     app.state.settings = settings
     app.state.rate_limiter = (RateLimiter(settings.rate_limit, settings.rate_burst)
                               if settings.rate_limit > 0 else None)
+    app.state.auth_failures = RateLimiter(settings.auth_failures / 60.0, settings.auth_failures)
+    app.state.metrics = CollectorRegistry(auto_describe=False)  # one per app (tests run many)
     app.openapi = openapi_builder(app)  # type: ignore[method-assign]
     if settings.cors_origins:
         app.add_middleware(CORSMiddleware, allow_origins=list(settings.cors_origins),
-                           allow_methods=["GET", "POST", "DELETE"],
-                           allow_headers=["Content-Type", "X-API-Key", "Idempotency-Key",
-                                          "Range"],
+                           allow_methods=["GET", "HEAD", "POST", "DELETE"],
+                           allow_headers=["Content-Type", "Content-Encoding", "X-API-Key",
+                                          "Idempotency-Key", "Range"],
                            expose_headers=["Location", "Retry-After", "Idempotent-Replayed",
                                            "Content-Range", "X-PolyDDA-Recovered"])
+    # added innermost first: ErrorBoundary wraps them all
+    app.add_middleware(SecurityHeaders)
+    app.add_middleware(HeadAsGet)
+    app.add_middleware(RequestMetrics, registry=app.state.metrics)
+    app.add_middleware(ErrorBoundary)
     app.mount("/static", StaticFiles(directory=STATIC_DIR, check_dir=False), name="static")
     app.include_router(router)
     install_handlers(app)
@@ -135,16 +169,28 @@ def _service_routes(app: FastAPI, settings: Settings) -> None:
              summary="Health: the queue (Redis), live workers and job counts; 503 when jobs "
                      "cannot be queued",
              responses={503: {"description": "the job queue is unreachable"}})
-    def health(store: StoreDep, backend: BackendDep) -> JSONResponse:
-        counts = store.counts()
-        checks = backend.health()
-        status = checks.pop("status")
-        body = {"status": status, "backend": settings.backend, "version": VERSION,
-                "accepted": counts["accepted"], "running": counts["running"], **checks}
+    async def health(request: Request) -> JSONResponse:
+        # on threads of its own: a flood of other requests cannot hold up the answer
+        body = await asyncio.get_running_loop().run_in_executor(
+            _HEALTH_THREADS, _health, request.app.state.store, request.app.state.backend)
+        status = body["status"]
         return JSONResponse(body, status_code=503 if status == "unavailable" else 200)
 
+    def _health(store: JobStore, backend: Backend) -> dict[str, Any]:
+        checks = backend.health()
+        status = checks.pop("status")
+        try:
+            counts = store.counts()
+        except sqlite3.Error as exc:  # a full disk: SQLite cannot even read its table
+            return {"status": "unavailable", "backend": settings.backend,
+                    "version": VERSION, "accepted": None, "running": None, **checks,
+                    "job_table": f"unreadable: {exc}"}
+        return {"status": status, "backend": settings.backend, "version": VERSION,
+                "accepted": counts["accepted"], "running": counts["running"], **checks}
+
     @app.get("/metrics", tags=["service"], operation_id="metrics",
-             summary="Prometheus metrics: jobs by state, queue wait, run time, workers",
+             summary="Prometheus metrics: jobs by state, queue wait, run time, workers; "
+                     "HTTP requests and their latency by route and status, 5xx answers",
              response_class=Response,
              responses={200: {"content": {"text/plain": {"schema": {"type": "string"}}}}})
     def metrics() -> Response:
@@ -157,8 +203,16 @@ def _service_routes(app: FastAPI, settings: Settings) -> None:
         return HTMLResponse(_DOCS_HTML.format(root=root))
 
 
+def over_tls(request: Request) -> bool:
+    """True when the browser talks to the service over TLS: the request's scheme, or a
+    TLS-terminating proxy's X-Forwarded-Proto."""
+    proto = request.headers.get("x-forwarded-proto", "").split(",")[0].strip().lower()
+    return request.url.scheme in ("https", "wss") or proto == "https"
+
+
 def home_page(request: Request, settings: Settings, store: JobStore, root: str) -> str:
-    """The home page HTML: the caller's newest jobs, or a key form when keys are needed."""
+    """The home page HTML: the caller's newest jobs, or a key form when keys are needed
+    (the key cookie marked Secure when the page came over TLS)."""
     from service.api.pages import home_html
 
     try:
@@ -166,9 +220,24 @@ def home_page(request: Request, settings: Settings, store: JobStore, root: str) 
     except Problem as exc:
         if exc.status != 401:
             raise
-        return home_html(root, None)
+        html = home_html(root, None)
+        if over_tls(request):
+            html = html.replace(";SameSite=Strict'", ";SameSite=Strict;Secure'")
+        return html
     jobs, total = store.list((), None, 100, 0, client=None if client.admin else client.id)
     return home_html(root, jobs, total, names=store.scene_names([j.id for j in jobs]))
+
+
+def is_loopback(host: str) -> bool:
+    """True if `host` (an address or a name) listens on loopback only."""
+    import ipaddress
+
+    if host.strip("[]").lower() == "localhost":
+        return True
+    try:
+        return ipaddress.ip_address(host.strip("[]")).is_loopback
+    except ValueError:
+        return False
 
 
 def serve(host: str = "127.0.0.1", port: int = 8000, settings: Settings | None = None) -> int:
@@ -177,6 +246,13 @@ def serve(host: str = "127.0.0.1", port: int = 8000, settings: Settings | None =
     import uvicorn
 
     settings = settings or Settings()
+    if not settings.keys_required and not settings.allow_open_network \
+            and not is_loopback(host):
+        print(f"polydda serve: refusing to listen on {host} without API keys: anyone who "
+              "can reach it could submit jobs. Set POLYDDA_API_KEYS (see "
+              "docs/service-security.md), listen on 127.0.0.1, or set "
+              "POLYDDA_ALLOW_OPEN_NETWORK=true", file=sys.stderr)
+        return 2
     try:
         lock = DataDirLock(settings.data_dir).acquire()
     except DataDirBusy as exc:

@@ -8,8 +8,10 @@ import hashlib
 import hmac
 import json
 import math
+import re
 import threading
 import time
+import zlib
 from dataclasses import dataclass
 from typing import Annotated, Any
 
@@ -50,8 +52,9 @@ api_key_header = APIKeyHeader(name="X-API-Key", auto_error=False,
 @dataclass(frozen=True)
 class Client:
     """Who is asking: `id` owns the jobs it creates (`key:<hash>` or `ip:<address>`);
-    `admin` sees every job. Without configured keys the service is open: every client sees
-    every job (`admin`), and quotas and rate limits count per address."""
+    `admin` sees every job. Without configured keys every client is its address: it sees,
+    downloads and dismisses only the jobs of its address, and quotas and rate limits count
+    per address (docs/service-security.md)."""
 
     id: str
     admin: bool
@@ -83,6 +86,14 @@ class RateLimiter:
                                  if now - v[1] < self.burst / self.rate}
             return (1.0 - tokens) / self.rate
 
+    def peek(self, client: str) -> float:
+        """0 if the client has a token now (none is taken), else the seconds until it has."""
+        now = time.monotonic()
+        with self._lock:
+            tokens, last = self._buckets.get(client, (float(self.burst), now))
+        tokens = min(float(self.burst), tokens + (now - last) * self.rate)
+        return 0.0 if tokens >= 1.0 else (1.0 - tokens) / self.rate
+
 
 def _matches(key: str, keys: frozenset[str]) -> bool:
     return any(hmac.compare_digest(key.encode(), k.encode()) for k in keys)
@@ -92,22 +103,45 @@ def _matches(key: str, keys: frozenset[str]) -> bool:
 KEY_COOKIE = "polydda_key"
 
 
+def _address(request: Request) -> str:
+    return request.client.host if request.client else "unknown"
+
+
+def _keyed_client(request: Request, settings: Settings, key: str | None) -> Client:
+    """The client of a valid key; 401 for a missing or wrong one, 429 for an address that
+    sent more than `auth_failures` wrong keys in a minute (checked before the key, so
+    guessing cannot go faster)."""
+    failures: RateLimiter = request.app.state.auth_failures
+    address = _address(request)
+    if key is not None:
+        wait = failures.peek(address)
+        if wait > 0:
+            raise Problem(429, "too-many-wrong-keys", "Too many wrong API keys",
+                          f"this address sent more than {settings.auth_failures} wrong API "
+                          f"keys in a minute; retry in {wait:.0f} s",
+                          headers={"Retry-After": str(max(1, math.ceil(wait)))})
+    admin = key is not None and _matches(key, settings.admin_keys)
+    if key is None or not (admin or _matches(key, settings.api_keys)):
+        if key is not None:
+            failures.wait_for(address)
+        raise Problem(401, "unauthorized", "API key missing or wrong",
+                      "send a valid key in the X-API-Key header (in a browser: enter it "
+                      "on the home page)",
+                      headers={"WWW-Authenticate": 'ApiKey header="X-API-Key"'})
+    return Client("key:" + hashlib.sha256(key.encode()).hexdigest()[:16], admin)
+
+
 def _client(request: Request, settings: SettingsDep,
             key: Annotated[str | None, Security(api_key_header)] = None) -> Client:
     """Who is asking (a valid key is required when keys are configured: the X-API-Key
-    header, or for GET requests the browser's key cookie); rate-limited."""
+    header, or for GET requests the browser's key cookie; without keys, the address);
+    rate-limited."""
     if key is None and request.method in ("GET", "HEAD"):
         key = request.cookies.get(KEY_COOKIE)
     if settings.keys_required:
-        admin = key is not None and _matches(key, settings.admin_keys)
-        if key is None or not (admin or _matches(key, settings.api_keys)):
-            raise Problem(401, "unauthorized", "API key missing or wrong",
-                          "send a valid key in the X-API-Key header (in a browser: enter it "
-                          "on the home page)",
-                          headers={"WWW-Authenticate": 'ApiKey header="X-API-Key"'})
-        client = Client("key:" + hashlib.sha256(key.encode()).hexdigest()[:16], admin)
+        client = _keyed_client(request, settings, key)
     else:
-        client = Client("ip:" + (request.client.host if request.client else "unknown"), True)
+        client = Client("ip:" + _address(request), False)
     limiter: RateLimiter | None = request.app.state.rate_limiter
     if limiter is not None:
         wait = limiter.wait_for(client.id)
@@ -135,16 +169,58 @@ def _job(job_id: str, store: StoreDep, client: ClientDep, backend: BackendDep) -
 JobDep = Annotated[JobRecord, Depends(_job)]
 
 
-def _is_json(content_type: str) -> bool:
-    media = content_type.split(";", 1)[0].strip().lower()
-    return media in ("", "application/json") or (
-        media.startswith("application/") and media.endswith("+json"))
+#: a media type: type "/" subtype, both RFC 9110 tokens
+_MEDIA_TYPE = re.compile(r"^[!#$%&'*+.^_`|~0-9a-z-]+/[!#$%&'*+.^_`|~0-9a-z-]+$")
+
+
+def _is_json(content_type: str | None) -> bool:
+    """True for no Content-Type (JSON is assumed) and for application/json or
+    application/*+json with well-formed parameters; False for anything else (`;;;===`)."""
+    if content_type is None:
+        return True
+    media, _, params = content_type.partition(";")
+    media = media.strip().lower()
+    if not _MEDIA_TYPE.match(media):
+        return False
+    for param in params.split(";") if params else ():
+        name, eq, value = param.strip().partition("=")
+        if not (eq and name.strip() and value.strip()):
+            return False
+    return media == "application/json" or (media.startswith("application/")
+                                           and media.endswith("+json"))
+
+
+def _decode(raw: bytes, encoding: str | None, limit: int) -> bytes:
+    """The body without its Content-Encoding (identity or gzip; 415 for others, 400 for a
+    body that is not what its encoding says, 413 when it inflates beyond `limit`)."""
+    codings = [c.strip().lower() for c in (encoding or "").split(",") if c.strip()]
+    codings = [c for c in codings if c != "identity"]
+    if not codings:
+        return raw
+    if codings != ["gzip"] and codings != ["x-gzip"]:
+        raise Problem(415, "unsupported-content-encoding", "Unsupported content encoding",
+                      f"send the body plain or gzip-compressed, not {encoding!r}",
+                      headers={"Accept-Encoding": "gzip, identity"})
+    inflate = zlib.decompressobj(16 + zlib.MAX_WBITS)
+    try:
+        out = inflate.decompress(raw, limit + 1)
+        complete = inflate.eof and not inflate.unconsumed_tail
+    except zlib.error as exc:
+        raise Problem(400, "malformed-body", "Malformed body",
+                      f"the body is not gzip data as its Content-Encoding says: {exc}") from None
+    if len(out) > limit:
+        raise Problem(413, "body-too-large", "Request body too large",
+                      f"the body may have at most {limit:,} bytes (decompressed)")
+    if not complete:
+        raise Problem(400, "malformed-body", "Malformed body",
+                      "the gzip data of the body is truncated")
+    return out
 
 
 async def _scene_body(request: Request, settings: SettingsDep) -> Any:
     """The request body as parsed JSON: 415 unless JSON, 413 above the size limit (checked
     before reading), 422 for malformed JSON (including numbers Python refuses to read)."""
-    content_type = request.headers.get("content-type", "")
+    content_type = request.headers.get("content-type")
     if not _is_json(content_type):
         raise Problem(415, "unsupported-media-type", "Unsupported media type",
                       f"send the scene as application/json, not {content_type!r}",
@@ -161,7 +237,7 @@ async def _scene_body(request: Request, settings: SettingsDep) -> Any:
         if size > limit:
             raise too_large
         chunks.append(chunk)
-    raw = b"".join(chunks)
+    raw = _decode(b"".join(chunks), request.headers.get("content-encoding"), limit)
     if not raw.strip():
         raise invalid_scene([{"loc": "", "msg": "the request body is empty: send the scene "
                                                 "as a JSON object"}])

@@ -53,7 +53,7 @@ class JobCollector(Collector):
 
 
 def make_registry(store: JobStore, backend: Backend) -> CollectorRegistry:
-    """A registry of its own per app (tests run several apps in one process)."""
+    """A registry of its own with the job metrics (the app's also has its requests')."""
     registry = CollectorRegistry(auto_describe=False)
     registry.register(JobCollector(store, backend))
     return registry

@@ -489,8 +489,10 @@ def report_html(job: JobRecord, root: str, job_dir: Path, scene_text: str,
     links = " · ".join(f'<a href="{escape(h)}">{t}</a>' for t, h in job_links(job, root)
                        if t != "report")
     body = (_bar(root, f"<span>report</span> {links}")
-            + "<main class='report'><p class='noprint'><button onclick='window.print()'>"
-              "Print / save as PDF</button></p>" + "".join(s) + "</main>")
+            + "<main class='report'><p class='noprint'><button id='print'>"
+              "Print / save as PDF</button></p>" + "".join(s) + "</main>"
+              # a script, not an onclick attribute: the page's CSP allows its scripts by hash
+              "<script>document.getElementById('print').onclick=()=>window.print();</script>")
     return _page(f"PolyDDA report {job.id[:8]}", root, body, cls="report")
 
 

@@ -4,6 +4,7 @@ error one (validation, HTTP errors, a client that went away, anything unexpected
 from __future__ import annotations
 
 import logging
+import sqlite3
 from typing import Any
 
 from fastapi import FastAPI, Request
@@ -105,7 +106,10 @@ def allowed_methods(request: Request) -> list[str]:
     scope = request.scope  # a mount changes root_path; app_root_path is the app's own
     root = str(scope.get("app_root_path", scope.get("root_path", ""))).rstrip("/")
     path = request.url.path.removeprefix(root) or "/"
-    return sorted(_route_methods(request.app.router.routes, path))
+    methods = _route_methods(request.app.router.routes, path)
+    if "GET" in methods:  # service.api.middleware.HeadAsGet
+        methods.add("HEAD")
+    return sorted(methods)
 
 
 def install_handlers(app: FastAPI) -> None:
@@ -140,9 +144,15 @@ def install_handlers(app: FastAPI) -> None:
         return Problem(400, "client-disconnected", "Client disconnected",
                        "the request body ended early").response(request.url.path)
 
-    @app.exception_handler(Exception)
-    async def _internal(request: Request, exc: Exception) -> Response:
-        log.error("internal error on %s", request.url.path, exc_info=exc)
-        return Problem(500, "internal-error", "Internal error",
-                       "the service failed to answer; the error was logged").response(
-            request.url.path)
+    async def _storage(request: Request, exc: Exception) -> Response:
+        from service.jobs.store import disk_full
+
+        if not disk_full(exc):
+            raise exc  # the error boundary (service.api.middleware) answers 500
+        log.error("disk full on %s %s: %s", request.method, request.url.path, exc)
+        return Problem(507, "insufficient-storage", "Insufficient storage",
+                       "the service's disk is full; nothing was changed. Try again later",
+                       headers={"Retry-After": "300"}).response(request.url.path)
+
+    app.add_exception_handler(sqlite3.Error, _storage)
+    app.add_exception_handler(OSError, _storage)

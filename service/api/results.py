@@ -20,7 +20,7 @@ from service.api.problems import Problem
 from service.documents import NotRecorded, result_contacts_document
 from service.jobs.backend import Backend
 from service.jobs.processes import PROCESSES, RESULT_FILE
-from service.jobs.store import ACTIVE, SUCCESSFUL, JobRecord, JobStore
+from service.jobs.store import ACTIVE, FAILED, SUCCESSFUL, JobRecord, JobStore
 from service.settings import Settings
 
 log = logging.getLogger("service.api")
@@ -37,6 +37,32 @@ def _lock(name: str) -> threading.Lock:
         return _locks.setdefault(name, threading.Lock())
 
 
+def ensure_local(job: JobRecord, settings: Settings) -> None:
+    """With an object store: copy a finished job's stored files into the data directory
+    (once; later calls find them there). Nothing without a store or while the job runs."""
+    from service.jobs.objectstore import ResultStore
+
+    if job.status in ACTIVE:
+        return
+    store = ResultStore.of(settings)
+    if store is None:
+        return
+    d = settings.job_dir(job.id)
+    with _lock(job.id + "/fetch"):
+        if (d / ".fetched").is_file():
+            return
+        try:
+            if store.fetch_job(job.id, d):
+                (d / ".fetched").touch()
+        except Exception as exc:
+            log.warning("results of job %s not fetched from the object store: %s", job.id,
+                        exc)
+            raise Problem(503, "store-unavailable", "Result store unavailable",
+                          f"job {job.id}'s results could not be read from the object store "
+                          f"({type(exc).__name__}); retry later",
+                          headers={"Retry-After": "10"}) from None
+
+
 def require_final(job: JobRecord) -> None:
     """404 `result-not-ready` (with Retry-After) while the job is accepted or running."""
     if job.status in ACTIVE:
@@ -48,6 +74,7 @@ def require_final(job: JobRecord) -> None:
 def artifact(job: JobRecord, settings: Settings, name: str) -> Path:
     """The path of one of the job's result files (404 if it has none of that name)."""
     require_final(job)
+    ensure_local(job, settings)
     path = settings.job_dir(job.id) / name
     if name not in PROCESSES[job.process].artifacts or not path.is_file():
         raise Problem(404, "no-such-result", "No such result",
@@ -96,6 +123,25 @@ def readable_result(job: JobRecord, settings: Settings) -> tuple[Path, bool]:
         return copy, True
 
 
+def stored_file(job: JobRecord, settings: Settings, name: str) -> int | None:
+    """With an object store, the size of a finished job's stored file `name` when it is
+    to be streamed from the store (a successful job's; a killed run's result.h5 is
+    recovered from the local copy instead); else None."""
+    from service.jobs.objectstore import ResultStore
+
+    store = ResultStore.of(settings)
+    if store is None or job.status != SUCCESSFUL:
+        return None
+    if name not in PROCESSES[job.process].artifacts:
+        return None
+    try:
+        return store.size(job.id, name)
+    except Exception as exc:
+        raise Problem(503, "store-unavailable", "Result store unavailable",
+                      f"the object store did not answer ({type(exc).__name__}); retry later",
+                      headers={"Retry-After": "10"}) from None
+
+
 def so_far_document(job: JobRecord, store: JobStore, backend: Backend,
                     root: str) -> dict[str, Any]:
     """A running sweep parent's results: the aggregate of the realisations its children
@@ -111,6 +157,7 @@ def so_far_document(job: JobRecord, store: JobStore, backend: Backend,
 def results_document(job: JobRecord, settings: Settings, root: str) -> dict[str, Any]:
     """The results document: status, the main JSON artifact inline, links to the files."""
     require_final(job)
+    ensure_local(job, settings)
     p = PROCESSES[job.process]
     d = settings.job_dir(job.id)
     base = f"{root}/jobs/{job.id}/results"
@@ -126,7 +173,12 @@ def results_document(job: JobRecord, settings: Settings, root: str) -> dict[str,
     elif (d / RESULT_FILE).is_file():  # a run killed before it could write its summary
         from engine.results.summary import summarize
 
-        doc[p.result_key] = summarize(d / RESULT_FILE)
+        summary = summarize(d / RESULT_FILE)
+        if summary.get("status") == "running":  # the file's word when its run was killed
+            summary["status"] = "killed" if job.status == FAILED else job.status
+            summary["message"] = (f"the run was stopped before it ended ({job.message}); "
+                                  "the steps recorded until then are kept")
+        doc[p.result_key] = summary
     links = []
     for n in files:
         link = {"href": f"{base}/{n}", "rel": "enclosure", "type": FILE_TYPES[Path(n).suffix],
@@ -187,6 +239,7 @@ def contacts(job: JobRecord, settings: Settings, step: int | None) -> dict[str, 
 def live_result(job: JobRecord, settings: Settings) -> Path:
     """The job's result.h5 as it is now: also while running (the steps written so far);
     404 while it has none yet (Retry-After when it may come)."""
+    ensure_local(job, settings)
     path = settings.job_dir(job.id) / RESULT_FILE
     if RESULT_FILE not in PROCESSES[job.process].artifacts:
         raise Problem(404, "no-such-result", "No result file",
@@ -229,6 +282,7 @@ def report(job: JobRecord, settings: Settings, scene_text: str, root: str) -> st
     its FS or sweep, the kinematic screening of the scene's joints against its slope face,
     the blocks at the last recorded step, the plots."""
     require_final(job)
+    ensure_local(job, settings)
     d = settings.job_dir(job.id)
     names: list[str] = []
     meta: dict[str, Any] = {}

@@ -5,13 +5,15 @@ from __future__ import annotations
 
 import asyncio
 import json
+import logging
 import os
+import re
 import shutil
 import time
 from collections.abc import AsyncIterator
 from typing import Annotated, Any, Literal
 
-from fastapi import APIRouter, Depends, Query
+from fastapi import APIRouter, Depends, Header, Query, Request
 from fastapi.responses import FileResponse, HTMLResponse, JSONResponse, Response
 from starlette.concurrency import run_in_threadpool
 from starlette.datastructures import Headers
@@ -39,6 +41,8 @@ from service.jobs.fanout import cancel as cancel_job
 from service.jobs.fanout import current as current_job
 from service.jobs.processes import PROCESS_IDS, PROCESSES, RESULT_FILE, ProcessId
 from service.jobs.store import ACTIVE, JobStore
+
+log = logging.getLogger("service.api")
 
 #: the largest offset SQLite takes (a signed 64-bit integer)
 MAX_OFFSET = 2**63 - 1
@@ -108,21 +112,22 @@ _SUBMIT_RESPONSES: dict[int | str, dict[str, Any]] = {
                          "Idempotency-Key)", "model": StatusInfo,
           "headers": {"Location": {"schema": {"type": "string"},
                                    "description": "the job's URL"}}},
-    **problem_responses(401, 404, 413, 415, 422, 429, 503, 507),
+    **problem_responses(400, 401, 404, 413, 415, 422, 429, 503, 507),
 }
 
 
 @router.post("/processes/{process_id}/execution", tags=["processes"], status_code=201,
              summary="Run a process on a scene (creates a job)", openapi_extra=_SCENE_BODY,
              responses=_SUBMIT_RESPONSES, response_model=None, operation_id="executeProcess")
-def execute_process(process_id: str, data: SceneBody, settings: SettingsDep, store: StoreDep,
-                    backend: BackendDep, client: ClientDep, root: RootDep,
-                    key: IdempotencyKey = None, shares: Shares = 1) -> JSONResponse:
+async def execute_process(process_id: str, data: SceneBody, request: Request,
+                          settings: SettingsDep, store: StoreDep, backend: BackendDep,
+                          client: ClientDep, root: RootDep, key: IdempotencyKey = None,
+                          shares: Shares = 1) -> JSONResponse:
     if process_id not in PROCESSES:
         raise _no_such_process(process_id)
-    return submission.submit(process_id, data, settings=settings, store=store,
-                             backend=backend, client=client, key=key, root=root,
-                             shares=shares)
+    return await submission.submit(process_id, data, settings=settings, store=store,
+                                   backend=backend, client=client, key=key, root=root,
+                                   app_state=request.app.state, shares=shares)
 
 
 # --------------------------------------------------------------------------- jobs
@@ -132,11 +137,13 @@ def execute_process(process_id: str, data: SceneBody, settings: SettingsDep, sto
              summary="Submit a scene (creates a job; process from ?process=, the body's "
                      "'process' or the scene's analysis.type)",
              responses=_SUBMIT_RESPONSES, response_model=None, operation_id="createJob")
-def create_job(data: SceneBody, settings: SettingsDep, store: StoreDep, backend: BackendDep,
-               client: ClientDep, root: RootDep, process: ProcessId | None = None,
-               key: IdempotencyKey = None, shares: Shares = 1) -> JSONResponse:
-    return submission.submit(process, data, settings=settings, store=store, backend=backend,
-                             client=client, key=key, root=root, shares=shares)
+async def create_job(data: SceneBody, request: Request, settings: SettingsDep,
+                     store: StoreDep, backend: BackendDep, client: ClientDep, root: RootDep,
+                     process: ProcessId | None = None, key: IdempotencyKey = None,
+                     shares: Shares = 1) -> JSONResponse:
+    return await submission.submit(process, data, settings=settings, store=store,
+                                   backend=backend, client=client, key=key, root=root,
+                                   app_state=request.app.state, shares=shares)
 
 
 @router.get("/jobs", tags=["jobs"], summary="List your jobs (newest first; admins: all)",
@@ -191,11 +198,24 @@ def dismiss_job(job: JobDep, store: StoreDep, backend: BackendDep, settings: Set
                             status_code=200 if current.is_final else 202)
     for gone in (job.id, *(c.id for c in store.children(job.id) if c.is_final)):
         shutil.rmtree(settings.job_dir(gone), ignore_errors=True)
+        forget_stored(settings, gone)
         store.delete(gone)
     doc = status_doc(job, root)
     doc.update(status="dismissed", message="removed with its results",
                links=[lk for lk in doc["links"] if lk["rel"] == "self"])
     return doc
+
+
+def forget_stored(settings: SettingsDep, job_id: str) -> None:
+    """Remove a dismissed job's objects from the object store, if there is one."""
+    from service.jobs.objectstore import ResultStore
+
+    store = ResultStore.of(settings)
+    if store is not None:
+        try:
+            store.delete_job(job_id)
+        except Exception as exc:  # the job's row goes; its objects are orphans then
+            log.warning("objects of job %s not deleted: %s", job_id, exc)
 
 
 #: one server-sent event of /jobs/{id}/events (Open API before 3.2: the schema of a
@@ -324,7 +344,12 @@ def job_frames(job: JobDep, settings: SettingsDep,
                        206: {"description": "part of the file (Range)",
                              "content": {"application/x-hdf5": {}}},
                        **problem_responses(401, 404, 416)})
-def job_file(job: JobDep, name: str, settings: SettingsDep) -> FileResponse:
+def job_file(job: JobDep, name: str, settings: SettingsDep,
+             range_header: Annotated[str | None, Header(alias="Range", include_in_schema=False)]
+             = None) -> Response:
+    size = results.stored_file(job, settings, name)
+    if size is not None:  # in the object store: streamed from there
+        return stored_response(job.id, name, size, settings, range_header)
     headers = {}
     if name == RESULT_FILE:
         path, recovered = results.readable_result(job, settings)
@@ -334,6 +359,48 @@ def job_file(job: JobDep, name: str, settings: SettingsDep) -> FileResponse:
         path = results.artifact(job, settings, name)
     return ProblemFileResponse(path, media_type=FILE_TYPES[path.suffix], headers=headers,
                                filename=f"{job.id}-{name}" if path.suffix == ".h5" else None)
+
+
+def stored_response(job_id: str, name: str, size: int, settings: SettingsDep,
+                    range_header: str | None) -> StreamingResponse:
+    """A stored result file streamed from the object store: whole (200) or one byte range
+    (206; 416 outside the file, 400 malformed; several ranges: the whole file)."""
+    from service.jobs.objectstore import ResultStore
+
+    store = ResultStore.of(settings)
+    assert store is not None
+    suffix = "." + name.rsplit(".", 1)[-1]
+    headers = {"Accept-Ranges": "bytes"}
+    if suffix == ".h5":
+        headers["Content-Disposition"] = f'attachment; filename="{job_id}-{name}"'
+    span = _byte_range(range_header, size) if range_header and "," not in range_header \
+        else None
+    if span is None:
+        headers["Content-Length"] = str(size)
+        return StreamingResponse(store.stream(job_id, name), media_type=FILE_TYPES[suffix],
+                                 headers=headers)
+    start, end = span
+    headers |= {"Content-Range": f"bytes {start}-{end}/{size}",
+                "Content-Length": str(end - start + 1)}
+    return StreamingResponse(store.stream(job_id, name, start, end), status_code=206,
+                             media_type=FILE_TYPES[suffix], headers=headers)
+
+
+def _byte_range(header: str, size: int) -> tuple[int, int]:
+    """(start, end) inclusive of one `bytes=a-b`, `bytes=a-` or `bytes=-n` range."""
+    m = re.fullmatch(r"\s*bytes\s*=\s*(\d*)\s*-\s*(\d*)\s*", header)
+    if m is None or (not m[1] and not m[2]):
+        raise Problem(400, "malformed-range", "Malformed Range header",
+                      f"expected bytes=START-END, got {header!r}")
+    if not m[1]:
+        start, end = max(0, size - int(m[2])), size - 1
+    else:
+        start = int(m[1])
+        end = min(int(m[2]), size - 1) if m[2] else size - 1
+    if start > end or start >= size or (not m[1] and int(m[2]) == 0):
+        raise Problem(416, "range-not-satisfiable", "Range not satisfiable",
+                      f"the file has {size:,} bytes", headers={"Content-Range": f"bytes */{size}"})
+    return start, end
 
 
 # --------------------------------------------------------------------------- pages

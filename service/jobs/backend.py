@@ -22,7 +22,7 @@ import time
 from typing import Any
 
 from service.jobs.fanout import refresh_all
-from service.jobs.store import ACCEPTED, DISMISSED, RUNNING, JobRecord, JobStore
+from service.jobs.store import ACCEPTED, DISMISSED, RUNNING, JobRecord, JobStore, disk_full
 from service.settings import Settings
 
 log = logging.getLogger(__name__)
@@ -40,6 +40,17 @@ class Backend:
         self._wake = threading.Event()
         self._stopping = threading.Event()
         self._thread: threading.Thread | None = None
+        self._quiet_until = 0.0
+
+    def low_disk(self) -> bool:
+        """True when the data directory's disk has less free space than `min_free_bytes`
+        (no job is started then: it would fail at once)."""
+        if self.settings.min_free_bytes <= 0:
+            return False
+        try:
+            return shutil.disk_usage(self.settings.data_dir).free < self.settings.min_free_bytes
+        except OSError:
+            return False
 
     # ------------------------------------------------------------------ lifecycle
     def start(self) -> None:
@@ -66,8 +77,13 @@ class Backend:
                 if time.monotonic() >= next_housekeeping:
                     next_housekeeping = time.monotonic() + self.housekeeping_period
                     self.housekeeping()
-            except Exception:  # the supervisor must outlive any one bad tick
-                log.exception("supervisor tick failed")
+            except Exception as exc:  # the supervisor must outlive any one bad tick
+                if disk_full(exc):  # said once a minute, not 5 tracebacks a second
+                    if time.monotonic() >= self._quiet_until:
+                        log.error("supervisor: the disk is full (%s); retrying", exc)
+                        self._quiet_until = time.monotonic() + 60.0
+                else:
+                    log.exception("supervisor tick failed")
             self._wake.wait(self.period)
             self._wake.clear()
 
@@ -77,8 +93,17 @@ class Backend:
             return []
         now = time.time() if now is None else now
         gone = []
+        from service.jobs.objectstore import ResultStore
+
+        objects = ResultStore.of(self.settings)
         for job in self.store.expired(now - self.settings.retention):
             shutil.rmtree(self.settings.job_dir(job.id), ignore_errors=True)
+            if objects is not None:
+                try:
+                    objects.delete_job(job.id)
+                except Exception as exc:
+                    log.warning("objects of job %s not deleted: %s", job.id, exc)
+                    continue
             if self.store.delete(job.id):
                 gone.append(job.id)
         if gone:

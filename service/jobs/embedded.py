@@ -11,9 +11,13 @@ it is gone; the next API process re-queues what was left running.
 
 from __future__ import annotations
 
+import contextlib
+import json
 import logging
 import os
+import shutil
 import signal
+import sqlite3
 import subprocess
 import sys
 import time
@@ -21,7 +25,15 @@ from pathlib import Path
 from typing import Any
 
 from service.jobs.backend import Backend
-from service.jobs.store import ACCEPTED, DISMISSED, FAILED, RUNNING, JobRecord, JobStore
+from service.jobs.store import (
+    ACCEPTED,
+    DISMISSED,
+    FAILED,
+    RUNNING,
+    JobRecord,
+    JobStore,
+    disk_full,
+)
 from service.jobs.tasks import TaskContext
 
 log = logging.getLogger(__name__)
@@ -41,7 +53,12 @@ class SqliteContext(TaskContext):
         self.orphaned = False
 
     def write_progress(self, values: dict[str, Any]) -> None:
-        self.store.update(self.job_id, only_if=[RUNNING], **values)
+        try:
+            self.store.update(self.job_id, only_if=[RUNNING], **values)
+        except sqlite3.Error as exc:  # a full disk: the next write carries the news
+            if not disk_full(exc):
+                raise
+            log.warning("progress of job %s not written: %s", self.job_id, exc)
 
     def cancel_requested(self) -> bool:
         if os.getppid() != self.parent_pid:
@@ -52,33 +69,84 @@ class SqliteContext(TaskContext):
 
 
 def child_main(db_path: str, job_id: str, process: str, job_dir: str, nice: int,
-               interval: float, parent_pid: int) -> None:
-    """Body of a job process (its environment set by the parent): run, record the outcome."""
+               interval: float, parent_pid: int, outcome_fd: int = -1,
+               min_free_bytes: int = 0) -> None:
+    """Body of a job process (its environment set by the parent): run, record the outcome.
+
+    The outcome also goes to the parent through `outcome_fd` before it is written to the
+    job table: when that write fails (a full disk), the parent retries it.
+    """
     if nice:
         os.nice(nice)
     from service.jobs.execute import execute
 
-    store = JobStore(Path(db_path))
+    def send(values: dict[str, Any]) -> None:
+        if outcome_fd >= 0:
+            with contextlib.suppress(OSError):
+                os.write(outcome_fd, json.dumps(values).encode()[:60_000])
+                os.close(outcome_fd)
+
+    try:
+        store = JobStore(Path(db_path))
+        scene_text = store.scene(job_id)
+    except sqlite3.Error as exc:  # e.g. a disk so full that the table cannot be opened
+        send({"status": FAILED, "error_kind": "system", "finished": time.time(),
+              "message": f"system error: the job table could not be read ({exc}"
+                         f"{': the disk is full' if disk_full(exc) else ''})"})
+        raise
     ctx = SqliteContext(store, job_id, parent_pid, interval)
-    outcome = execute(process, store.scene(job_id), Path(job_dir), ctx)
+    ctx.guard_disk(Path(db_path).parent, min_free_bytes)
+    outcome = execute(process, scene_text, Path(job_dir), ctx)
     if ctx.orphaned:  # the API process is gone: leave the job running for its successor
         return
-    store.update(job_id, only_if=[RUNNING], status=outcome.status, message=outcome.message,
-                 error_kind=outcome.error_kind, finished=time.time())
+    values = {"status": outcome.status, "message": outcome.message,
+              "error_kind": outcome.error_kind, "finished": time.time()}
+    send(values)
+    try:
+        store.update(job_id, only_if=[RUNNING], **values)
+    except sqlite3.Error as exc:
+        if not disk_full(exc):
+            raise
+        log.error("outcome of job %s not written (%s); the service retries it", job_id, exc)
 
 
 def job_command(db_path: Path, job_id: str, process: str, job_dir: Path, nice: int,
-                interval: float, parent_pid: int) -> list[str]:
+                interval: float, parent_pid: int, outcome_fd: int = -1,
+                min_free_bytes: int = 0) -> list[str]:
     """The command line of a job process (read back by :func:`main`)."""
     return [sys.executable, "-m", JOB_MODULE, str(db_path), job_id, process, str(job_dir),
-            str(nice), repr(interval), str(parent_pid)]
+            str(nice), repr(interval), str(parent_pid), str(outcome_fd), str(min_free_bytes)]
 
 
 def main(argv: list[str]) -> int:
     """Entry point of a job process: `python -m service.jobs.embedded` + job_command."""
-    db_path, job_id, process, job_dir, nice, interval, parent_pid = argv
-    child_main(db_path, job_id, process, job_dir, int(nice), float(interval), int(parent_pid))
+    db_path, job_id, process, job_dir, nice, interval, parent_pid, fd, free = argv
+    child_main(db_path, job_id, process, job_dir, int(nice), float(interval), int(parent_pid),
+               int(fd), int(free))
     return 0
+
+
+def _read_outcome(fd: int) -> dict[str, Any] | None:
+    """The outcome a job process sent through its pipe (None if it sent none); closes fd."""
+    chunks = []
+    try:
+        while True:
+            chunk = os.read(fd, 65536)
+            if not chunk:
+                break
+            chunks.append(chunk)
+    except BlockingIOError:
+        pass
+    except OSError:
+        return None
+    finally:
+        with contextlib.suppress(OSError):
+            os.close(fd)
+    try:
+        values = json.loads(b"".join(chunks)) if chunks else None
+    except ValueError:
+        return None
+    return values if isinstance(values, dict) and "status" in values else None
 
 
 def _exit_text(code: int | None) -> str:
@@ -108,6 +176,11 @@ class EmbeddedBackend(Backend):
         super().__init__(*args, **kwargs)
         self.procs: dict[str, subprocess.Popen[bytes]] = {}
         self.terminated: dict[str, float] = {}
+        #: job id -> read end of the pipe its process sends its outcome through
+        self.outcome_pipes: dict[str, int] = {}
+        #: outcomes of ended job processes not yet written to the job table (a full
+        #: disk): retried every tick until they are
+        self.pending: dict[str, dict[str, Any]] = {}
 
     def recover(self) -> None:
         for job in self.store.active():
@@ -123,12 +196,13 @@ class EmbeddedBackend(Backend):
 
     def tick(self) -> None:
         self._reap()
+        self._write_pending()
         self._enforce_cancel()
         self._start_jobs()
 
     def _start_jobs(self) -> None:
-        free = self.settings.max_workers - len(self.procs)
-        if free <= 0 or self._stopping.is_set():
+        free = self.settings.max_workers - len(self.procs) - len(self.pending)
+        if free <= 0 or self._stopping.is_set() or self.low_disk():
             return
         waiting = [j for j in self.store.active() if j.status == ACCEPTED][:free]
         for job in waiting:
@@ -137,41 +211,78 @@ class EmbeddedBackend(Backend):
 
     def _spawn(self, job: JobRecord) -> None:
         s = self.settings
+        read_fd, write_fd = os.pipe()
+        os.set_blocking(read_fd, False)
         cmd = job_command(s.db_path.resolve(), job.id, job.process, s.job_dir(job.id).resolve(),
-                          s.worker_nice, s.progress_interval, os.getpid())
+                          s.worker_nice, s.progress_interval, os.getpid(), write_fd,
+                          s.min_free_bytes)
         try:
             # its own session: a Ctrl-C at the API's terminal reaches the API only, whose
             # stop() then ends the job processes and re-queues their jobs
             proc = subprocess.Popen(cmd, env={**os.environ, **s.worker_env()},
-                                    stdin=subprocess.DEVNULL, start_new_session=True)
+                                    stdin=subprocess.DEVNULL, start_new_session=True,
+                                    pass_fds=(write_fd,))
         except Exception as exc:
+            os.close(read_fd)
             log.exception("cannot start a process for job %s", job.id)
             self.store.update(job.id, only_if=[RUNNING], status=FAILED, finished=time.time(),
                               error_kind="system",
                               message=f"system error: cannot start a job process: {exc}")
             return
+        finally:
+            os.close(write_fd)
         self.procs[job.id] = proc
+        self.outcome_pipes[job.id] = read_fd
         self.store.update(job.id, only_if=[RUNNING], worker_pid=proc.pid)
 
     def _reap(self) -> None:
+        """Settle the jobs whose processes ended: the outcome each sent (if the job table
+        does not have it yet), else why it ended. A write that fails (a full disk) is kept
+        in `pending` and retried; the process leaves the table only once it is decided."""
         for job_id, proc in list(self.procs.items()):
             if proc.poll() is None:
                 continue
-            del self.procs[job_id]
+            sent = _read_outcome(self.outcome_pipes.pop(job_id, -1))
+            self.pending[job_id] = self._final_values(job_id, proc, sent)
+            del self.procs[job_id]  # only now: its outcome is kept in `pending`
             self.terminated.pop(job_id, None)
+
+    def _final_values(self, job_id: str, proc: subprocess.Popen[bytes],
+                      sent: dict[str, Any] | None) -> dict[str, Any]:
+        """The final fields of a job whose process ended (`sent`: its own outcome)."""
+        now = time.time()
+        if sent is not None:
+            return {"status": sent["status"], "message": str(sent.get("message") or ""),
+                    "error_kind": sent.get("error_kind"),
+                    "finished": float(sent.get("finished") or now)}
+        try:
             job = self.store.get(job_id)
-            if job is None or job.status != RUNNING:
-                continue  # the job process recorded its outcome
-            now = time.time()
-            if job.cancel_requested is not None:
-                self.store.update(job_id, only_if=[RUNNING], status=DISMISSED, finished=now,
-                                  message="cancelled: the job process was stopped; "
-                                          "partial results kept")
-            else:
-                self.store.update(
-                    job_id, only_if=[RUNNING], status=FAILED, finished=now, error_kind="system",
-                    message=f"system error: the job process ended unexpectedly "
-                            f"({_exit_text(proc.returncode)}); resubmit the job")
+        except sqlite3.Error:  # unreadable now (a full disk): not cancelled, as far as known
+            job = None
+        if job is not None and job.cancel_requested is not None:
+            return {"status": DISMISSED, "finished": now,
+                    "message": "cancelled: the job process was stopped; partial results kept"}
+        why = " while the data directory's disk was full" if self._disk_full_now() else ""
+        return {"status": FAILED, "finished": now, "error_kind": "system",
+                "message": f"system error: the job process ended unexpectedly "
+                           f"({_exit_text(proc.returncode)}){why}; resubmit the job"}
+
+    def _disk_full_now(self) -> bool:
+        try:
+            return shutil.disk_usage(self.settings.data_dir).free < (1 << 20)
+        except OSError:
+            return False
+
+    def _write_pending(self) -> None:
+        """Write the outcomes of ended job processes to the job table (only over `running`:
+        a job that recorded its own outcome keeps it); keep those that fail for later."""
+        for job_id, values in list(self.pending.items()):
+            try:
+                self.store.update(job_id, only_if=[RUNNING], **values)
+            except sqlite3.Error as exc:
+                log.warning("outcome of job %s not written yet (%s); retrying", job_id, exc)
+                continue
+            del self.pending[job_id]
 
     def _enforce_cancel(self) -> None:
         if not self.procs:
@@ -188,13 +299,31 @@ class EmbeddedBackend(Backend):
                 proc.terminate()
                 self.terminated[job_id] = now
 
+    def _stopped(self, job_id: str) -> None:
+        """A job whose process the stopping service ended: dismissed if it was being
+        cancelled, else back to the queue (its attempt not counted)."""
+        job = self.store.get(job_id)
+        if job is None or job.status != RUNNING:
+            return
+        if job.cancel_requested is not None:
+            self.store.update(job_id, only_if=[RUNNING], status=DISMISSED, finished=time.time(),
+                              message="cancelled; partial results kept")
+        else:
+            self.store.update(job_id, only_if=[RUNNING], status=ACCEPTED,
+                              attempts=max(0, job.attempts - 1), worker_pid=None,
+                              message="re-queued: the service was stopped")
+
     def on_cancel(self, job_id: str, started: bool) -> None:
         self.wake()
 
     def health(self) -> dict[str, Any]:
         alive = self._thread is not None and self._thread.is_alive()
-        return {"status": "ok" if alive else "unavailable",
-                "workers": self.settings.max_workers, "busy": len(self.procs)}
+        doc = {"status": "ok" if alive else "unavailable",
+               "workers": self.settings.max_workers, "busy": len(self.procs)}
+        if self.pending:  # ended jobs whose outcome could not be written yet (disk full)
+            doc |= {"status": "degraded" if alive else "unavailable",
+                    "unrecorded": len(self.pending)}
+        return doc
 
     def stop(self) -> None:
         """Stop supervising; job processes are stopped and their jobs re-queued."""
@@ -211,17 +340,16 @@ class EmbeddedBackend(Backend):
                     proc.wait(2.0)
                 except subprocess.TimeoutExpired:
                     log.error("job process %s of job %s does not die", proc.pid, job_id)
-            job = self.store.get(job_id)
-            if job is not None and job.status == RUNNING:
-                if job.cancel_requested is not None:
-                    self.store.update(job_id, only_if=[RUNNING], status=DISMISSED,
-                                      finished=time.time(),
-                                      message="cancelled; partial results kept")
-                else:
-                    self.store.update(job_id, only_if=[RUNNING], status=ACCEPTED,
-                                      attempts=max(0, job.attempts - 1), worker_pid=None,
-                                      message="re-queued: the service was stopped")
+            try:
+                self._stopped(job_id)
+            except sqlite3.Error as exc:  # the next server's recovery settles the job
+                log.error("job %s not re-queued: %s", job_id, exc)
         self.procs.clear()
+        for fd in self.outcome_pipes.values():
+            with contextlib.suppress(OSError):
+                os.close(fd)
+        self.outcome_pipes.clear()
+        self._write_pending()
 
 
 if __name__ == "__main__":

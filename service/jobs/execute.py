@@ -42,10 +42,26 @@ def execute(process: str, scene_text: str, job_dir: Path, ctx: TaskContext) -> O
     Scene problems and runs that cannot go on are `failed` with kind `model`; anything else
     (disk full, out of memory, a bug) is `failed` with kind `system`.
     """
+
+    try:
+        job_dir.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        return Outcome("failed", f"system error: cannot make the job's directory: {exc}",
+                       SYSTEM)
+    outcome = _execute(process, scene_text, job_dir, ctx)
+    if ctx.stop_reason is not None and outcome.status == "dismissed":
+        # stopped by the disk guard, not by its owner: a failure of the service's
+        kept = "" if outcome.message.startswith("cancelled before") else \
+            "; partial results kept"
+        return Outcome("failed", f"system error: {ctx.stop_reason}{kept}", SYSTEM)
+    return outcome
+
+
+def _execute(process: str, scene_text: str, job_dir: Path, ctx: TaskContext) -> Outcome:
     from schemas.convert import build_model
     from schemas.errors import SceneError
+    from service.jobs.store import disk_full
 
-    job_dir.mkdir(parents=True, exist_ok=True)
     if ctx.should_stop():
         return Outcome("dismissed", "cancelled before it started")
     try:
@@ -59,8 +75,24 @@ def execute(process: str, scene_text: str, job_dir: Path, ctx: TaskContext) -> O
         log.exception("job in %s ran out of memory", job_dir)
         return Outcome("failed", "system error: the job ran out of memory", SYSTEM)
     except Exception as exc:
+        if _caused_by(exc, disk_full):
+            log.error("job in %s stopped: the disk is full (%s)", job_dir, exc)
+            return Outcome("failed", f"system error: the disk is full ({exc}); partial "
+                                     "results kept", SYSTEM)
         log.exception("job in %s failed", job_dir)
         return Outcome("failed", f"system error: {type(exc).__name__}: {exc}", SYSTEM)
+
+
+def _caused_by(exc: BaseException, test: Any) -> bool:
+    """True if `exc` or an exception it was raised from or during passes `test`."""
+    seen: set[int] = set()
+    e: BaseException | None = exc
+    while e is not None and id(e) not in seen:
+        if test(e):
+            return True
+        seen.add(id(e))
+        e = e.__cause__ or e.__context__
+    return False
 
 
 # --------------------------------------------------------------------------- RQ entry point
@@ -193,6 +225,25 @@ class RedisContext(TaskContext):
             self.redis.delete(alive_key(self.job_id))
 
 
+def store_results(settings: Any, job_id: str, outcome: Outcome) -> Outcome:
+    """Upload the job's files to the object store, when one is configured (before its
+    outcome is recorded, so an ended job's results are there to serve); a failed upload
+    fails the job (kind system), its files kept in this worker's data directory."""
+    from service.jobs.objectstore import ResultStore
+
+    store = ResultStore.of(settings)
+    if store is None:
+        return outcome
+    try:
+        store.upload_job(job_id, settings.job_dir(job_id))
+    except Exception as exc:
+        log.exception("results of job %s not stored", job_id)
+        return Outcome("failed", f"system error: the results could not be stored in the "
+                                 f"object store ({type(exc).__name__}: {exc}); "
+                                 f"{outcome.status} before that: {outcome.message}", SYSTEM)
+    return outcome
+
+
 def die_with_parent() -> int:
     """Ask Linux to SIGKILL this process when its parent dies (prctl PR_SET_PDEATHSIG);
     returns the parent's pid. Exits at once if the parent is already gone."""
@@ -218,6 +269,7 @@ def run_rq(job_id: str, process: str, scene_text: str) -> str:
     parent = die_with_parent()  # the work horse must not outlive its worker
     ctx = RedisContext(current.connection, job_id, settings.progress_interval,
                        heartbeat_ttl=settings.rq_heartbeat_ttl, parent_pid=parent)
+    ctx.guard_disk(settings.data_dir, settings.min_free_bytes)
     ctx.start_heartbeat()
     try:
         now = time.time()
@@ -225,6 +277,8 @@ def run_rq(job_id: str, process: str, scene_text: str) -> str:
                        "worker_pid": os.getpid(),  # the work horse, on the worker's host
                        "run": ctx.run})
         outcome = execute(process, scene_text, settings.job_dir(job_id), ctx)
+        if not ctx.orphaned:
+            outcome = store_results(settings, job_id, outcome)
         if ctx.orphaned:  # the worker is gone (the API re-queues the job), or the job
             # runs again elsewhere: leave the job's records to the run that owns it (exit
             # 0: a live worker would otherwise mark the job's RQ record failed)

@@ -90,10 +90,14 @@ def _merged(store: JobStore, backend: Backend, kids: list[JobRecord]) -> dict[st
     """The children's sweep documents merged (those that have one), with the list of
     jobs; None when no child left one."""
     from engine.analyses.sweep import merge_documents
+    from service.jobs.objectstore import ResultStore
 
+    objects = ResultStore.of(backend.settings)
     docs = []
     for kid in kids:
         path = backend.settings.job_dir(kid.id) / "sweep.json"
+        if not path.is_file() and objects is not None and kid.is_final:
+            objects.fetch_job(kid.id, path.parent)  # ran on a worker of another host
         if path.is_file():
             docs.append(json.loads(path.read_text(encoding="utf-8")))
     if not docs:

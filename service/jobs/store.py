@@ -8,6 +8,7 @@ writes that change a job's state are conditional on its current status, so two w
 from __future__ import annotations
 
 import contextlib
+import errno
 import json
 import sqlite3
 import time
@@ -109,6 +110,19 @@ UPDATABLE = frozenset({"status", "started", "finished", "updated", "progress", "
                        "cancel_requested", "attempts", "worker_pid"})
 
 
+def disk_full(exc: BaseException) -> bool:
+    """True for the errors of a disk that takes no more writes: SQLite's SQLITE_FULL (13)
+    and SQLITE_IOERR (10: its write-ahead log could not grow), OSError ENOSPC or EDQUOT
+    (HDF5 and file writes)."""
+    if isinstance(exc, sqlite3.Error):
+        code = getattr(exc, "sqlite_errorcode", None)
+        return (code is not None and code & 0xFF in (10, 13)) or "disk is full" in str(exc) \
+            or "disk I/O error" in str(exc)
+    if isinstance(exc, OSError):
+        return exc.errno in (errno.ENOSPC, errno.EDQUOT) or "No space left" in str(exc)
+    return False
+
+
 class QuotaExceeded(Exception):
     """The client already has its quota of unfinished jobs."""
 
@@ -149,15 +163,22 @@ class JobStore:
 
     @contextlib.contextmanager
     def transaction(self) -> Iterator[sqlite3.Connection]:
-        """One write transaction (BEGIN IMMEDIATE ... COMMIT, rolled back on error)."""
+        """One write transaction (BEGIN IMMEDIATE ... COMMIT, rolled back on error).
+
+        SQLite rolls a transaction back by itself on some errors (a full disk); the
+        ROLLBACK is then skipped, so the caller sees the error itself ("database or disk is
+        full"), not "cannot rollback - no transaction is active".
+        """
         with self.connect() as db:
             db.execute("BEGIN IMMEDIATE")
             try:
                 yield db
+                db.execute("COMMIT")
             except BaseException:
-                db.execute("ROLLBACK")
+                if db.in_transaction:
+                    with contextlib.suppress(sqlite3.Error):
+                        db.execute("ROLLBACK")
                 raise
-            db.execute("COMMIT")
 
     # ------------------------------------------------------------------ reading
     @staticmethod
@@ -214,6 +235,19 @@ class JobStore:
                 f"SELECT {_COLUMNS} FROM jobs{clause} ORDER BY created DESC, rowid DESC "
                 "LIMIT ? OFFSET ?", [*args, limit, offset]).fetchall()
         return [JobRecord(*r) for r in rows], int(total)
+
+    def active_count(self, client: str) -> int:
+        """Unfinished jobs of a client that count against its quota (not parents)."""
+        with self.connect() as db:
+            return int(db.execute("SELECT COUNT(*) FROM jobs WHERE client = ? AND status IN "
+                                  "(?, ?) AND shares IS NULL", (client, *ACTIVE)).fetchone()[0])
+
+    def by_key(self, client: str, idempotency_key: str) -> JobRecord | None:
+        """The client's job created with this Idempotency-Key, if any."""
+        with self.connect() as db:
+            row = db.execute(f"SELECT {_COLUMNS} FROM jobs WHERE client = ? AND "
+                             "idempotency_key = ?", (client, idempotency_key)).fetchone()
+        return self._record(row)
 
     def active(self) -> list[JobRecord]:
         """Accepted and running jobs that run something (not parents), oldest first."""

@@ -6,8 +6,10 @@ reports progress (throttled), asks `should_stop()` and returns an :class:`Outcom
 
 from __future__ import annotations
 
+import shutil
 import time
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Any
 
 #: who is to blame for a failed job: the scene (`model`) or the service (`system`)
@@ -40,6 +42,32 @@ class TaskContext:
         self._last_report = -1e300
         self._last_poll = -1e300
         self._stop = False
+        #: the disk guard: the job stops when `guard_dir`'s disk has less than
+        #: `min_free_bytes` free (0: no guard)
+        self.guard_dir: Path | None = None
+        self.min_free_bytes = 0
+        #: why the job was stopped by the service itself (the disk guard), if it was
+        self.stop_reason: str | None = None
+
+    def guard_disk(self, directory: Path, min_free_bytes: int) -> None:
+        """Stop the job when `directory`'s disk has less than `min_free_bytes` free."""
+        self.guard_dir, self.min_free_bytes = directory, min_free_bytes
+
+    def low_disk(self) -> bool:
+        """True (and `stop_reason` set) when the guarded disk has too little free space."""
+        if self.guard_dir is None or self.min_free_bytes <= 0:
+            return False
+        try:
+            free = shutil.disk_usage(self.guard_dir).free
+        except OSError:
+            return False
+        if free >= self.min_free_bytes:
+            return False
+        self.stop_reason = (f"stopped by the service: the data directory's disk has "
+                            f"{free / 2**20:,.0f} MiB free, less than the "
+                            f"{self.min_free_bytes / 2**20:,.0f} MiB it keeps free "
+                            "(POLYDDA_MIN_FREE_BYTES)")
+        return True
 
     # hooks
     def write_progress(self, values: dict[str, Any]) -> None:
@@ -65,5 +93,5 @@ class TaskContext:
         now = time.monotonic()
         if now - self._last_poll >= self.poll:
             self._last_poll = now
-            self._stop = bool(self.cancel_requested())
+            self._stop = self.low_disk() or bool(self.cancel_requested())
         return self._stop
