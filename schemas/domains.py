@@ -192,12 +192,16 @@ def read_xyz_csv(text: str) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
 
 
 def _load_mesh(src: _Source, p: Problems):  # noqa: ANN202 (trimesh.Trimesh)
-    """The trimesh of a source, or None after a problem."""
+    """The trimesh of a source, or None after a problem (its coordinates are checked
+    before trimesh merges its vertices, which overflows on coordinates like 1e155)."""
     import trimesh
 
     try:
         mesh = trimesh.load(io.BytesIO(src.text.encode("utf-8")), file_type=src.fmt,
-                            force="mesh", process=True)
+                            force="mesh", process=False)
+        if len(mesh.faces) and _coordinates_problem(mesh.vertices, src.field, src.name, p):
+            return None
+        mesh.process()  # what trimesh.load(process=True) does after reading
     except Exception as exc:  # trimesh raises many kinds on a bad file
         p.add(src.field, f"{src.name}: not a readable {src.fmt} mesh ({exc})")
         return None
@@ -259,7 +263,7 @@ def _edges_cross(a: np.ndarray, b: np.ndarray, tol: float) -> bool:
 def _closed_mesh(src: _Source, p: Problems) -> tuple[np.ndarray, np.ndarray] | None:
     """Vertices and triangles of a closed, outward, non-self-intersecting mesh."""
     mesh = _load_mesh(src, p)
-    if mesh is None or _coordinates_problem(mesh.vertices, src.field, src.name, p):
+    if mesh is None:
         return None
     if not mesh.is_watertight:
         p.add(src.field, f"{src.name}: the mesh is open (it has edges with one triangle): a "
@@ -284,16 +288,18 @@ def _mesh_heights(src: _Source, spacing: float, p: Problems
     """A surface mesh sampled on a grid of `spacing` m over its footprint (vertical lines
     through each node; the highest crossing, NaN where none)."""
     mesh = _load_mesh(src, p)
-    if mesh is None or _coordinates_problem(mesh.vertices, src.field, src.name, p):
+    if mesh is None:
         return None
     v, f = np.asarray(mesh.vertices, float), np.asarray(mesh.faces, np.int64)
     lo, hi = v.min(axis=0), v.max(axis=0)
-    x = lo[0] + spacing * np.arange(int(np.floor((hi[0] - lo[0]) / spacing + 1e-9)) + 1)
-    y = lo[1] + spacing * np.arange(int(np.floor((hi[1] - lo[1]) / spacing + 1e-9)) + 1)
-    if len(x) * len(y) > MAX_GRID_NODES:
-        p.add(f"{src.loc}.grid_spacing", f"samples {len(x) * len(y):,} nodes; the limit is "
+    # the node counts first (floats): a fine spacing over a wide mesh is refused, not built
+    nx, ny = (np.floor((hi[:2] - lo[:2]) / spacing + 1e-9) + 1).tolist()
+    if nx * ny > MAX_GRID_NODES:
+        p.add(f"{src.loc}.grid_spacing", f"samples {nx * ny:,.0f} nodes; the limit is "
               f"{MAX_GRID_NODES:,} (a coarser grid_spacing)")
         return None
+    x = lo[0] + spacing * np.arange(int(nx))
+    y = lo[1] + spacing * np.arange(int(ny))
     xx, yy = np.meshgrid(x, y)
     z = np.full(xx.shape, np.nan)
     eps = 1e-9 * float(np.ptp(v, axis=0).max())

@@ -77,13 +77,17 @@ def limit_problems(scene: Any, settings: Settings) -> list[dict[str, str]]:
                              f"most {settings.max_blocks:,} (POLYDDA_MAX_BLOCKS): increase the "
                              "joint spacings or make the domain smaller"})
     a = scene.analysis
-    if a.duration > settings.max_duration:
-        problems.append({"loc": "analysis.duration", "msg": f"{a.duration:g} s; this service "
+    # a staged run lasts its stages' total (analysis.duration is not used then)
+    duration = sum(st.duration for st in scene.stages) if scene.stages else a.duration
+    where = "stages" if scene.stages else "analysis.duration"
+    what = "the stages last " if scene.stages else ""
+    if duration > settings.max_duration:
+        problems.append({"loc": where, "msg": f"{what}{duration:g} s; this service "
                          f"simulates at most {settings.max_duration:g} s "
                          "(POLYDDA_MAX_DURATION)"})
-    if a.duration / a.time_step > settings.max_steps:
+    if duration / a.time_step > settings.max_steps:
         problems.append({"loc": "analysis.time_step", "msg": f"duration / time_step = "
-                         f"{a.duration / a.time_step:.3g} steps; this service runs at most "
+                         f"{duration / a.time_step:.3g} steps; this service runs at most "
                          f"{settings.max_steps:,} (POLYDDA_MAX_STEPS)"})
     return problems
 
