@@ -305,7 +305,10 @@ def plot_snapshot(result: Result | PathLike, step: int | None, path: PathLike, *
         faces = [("0.7" if fixed[b] else mappable.to_rgba(v))
                  for b, v in zip(colours, vals, strict=True)]
     coll = Poly3DCollection(polys, facecolors=faces, edgecolors="k", linewidths=0.3)
-    ax.add_collection3d(coll)
+    # the limits are set from the vertices below: matplotlib's own autoscale reads the
+    # collection's padded face array (faces of unequal vertex counts), whose padding is
+    # uninitialised memory, and overflowed now and then on a staged run's snapshots
+    ax.add_collection3d(coll, autolim=False)
     shown = [x for b, x in enumerate(xs) if b not in gone]
     pts = np.concatenate(shown) if shown else np.zeros((1, 3))
     lo, hi = pts.min(axis=0), pts.max(axis=0)
