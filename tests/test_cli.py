@@ -251,14 +251,29 @@ def test_run_of_a_bad_scene_exits_2(capsys: pytest.CaptureFixture[str], tmp_path
 
 def test_plot_of_a_missing_or_foreign_file_says_so_in_one_line(
         capsys: pytest.CaptureFixture[str], tmp_path: Path) -> None:
-    """`polydda plot` of a file that is not there, or is not HDF5: one line, exit 1."""
+    """`polydda plot` of a file that is not there (exit 1), or is a scene, or is not a result
+    (exit 2, like any other bad input): one line that says what it is, not h5py's message."""
     code, out, err = run(capsys, "plot", str(tmp_path / "nope.h5"), "--out", str(tmp_path))
     assert code == 1 and err.strip() == f"polydda plot: no such result file: {tmp_path}/nope.h5"
     foreign = tmp_path / "scene.h5"
     foreign.write_text("{}")
     code, out, err = run(capsys, "plot", str(foreign), "--out", str(tmp_path))
-    assert code == 1 and len(err.strip().splitlines()) == 1
-    assert err.count("file signature not found") == 1
+    assert code == 2 and len(err.strip().splitlines()) == 1
+    assert f"{foreign} is a scene, not a result: run it first" in err
+    code, out, err = run(capsys, "plot", WEDGE)
+    assert code == 2 and f"polydda run {WEDGE} --out RESULT.h5" in err
+    foreign.write_bytes(b"PK\x03\x04 a zip")
+    code, out, err = run(capsys, "plot", str(foreign))
+    assert code == 2 and err == f"polydda plot: {foreign} is not a PolyDDA result (the HDF5 " \
+                                "file that polydda run --out writes)\n"
+    import h5py
+
+    with h5py.File(foreign, "w") as f:
+        f["x"] = [1.0]
+    code, out, err = run(capsys, "plot", str(foreign))
+    assert code == 2 and err == f"polydda plot: {foreign} is an HDF5 file but not a PolyDDA " \
+                                "result\n"
+    assert "signature" not in err and "Traceback" not in err
 
 
 def test_plot_chooses_blocks_and_snapshot_times(capsys: pytest.CaptureFixture[str],
