@@ -59,13 +59,27 @@ def json_default(obj: Any) -> Any:
     raise TypeError(f"{type(obj).__name__} is not JSON serializable")
 
 
+def _umask() -> int:
+    """The process's umask, read without changing it where Linux shows it (os.umask sets
+    it: two threads asking at once could leave the wrong one)."""
+    with contextlib.suppress(OSError, ValueError):
+        for line in Path("/proc/self/status").read_text().splitlines():
+            if line.startswith("Umask:"):
+                return int(line.split()[1], 8)
+    mask = os.umask(0o022)
+    os.umask(mask)
+    return mask
+
+
 def write_json_atomic(path: Path, doc: Any) -> None:
     """Write `doc` as JSON to `path` via a temporary file, fsync and rename (never half a
-    file for a reader)."""
+    file for a reader); the file gets the mode a plain new file gets (0644 under the usual
+    umask, like the HDF5 result), not mkstemp's 0600."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
     try:
+        os.fchmod(fd, 0o666 & ~_umask())
         with os.fdopen(fd, "w", encoding="utf-8") as f:
             json.dump(doc, f, indent=2, allow_nan=False, default=json_default)
             f.write("\n")

@@ -17,7 +17,6 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
-from scipy import optimize, stats
 
 from engine.analyses.kinematics import normal, trend_plunge
 
@@ -89,6 +88,9 @@ def fisher_fit(dips: Any, dip_directions: Any) -> dict[str, float]:
     else:  # A(κ) = coth κ − 1/κ is increasing from 0 to 1
         def a(k: float) -> float:
             return 1.0 / math.tanh(k) - 1.0 / k - r_bar
+
+        from scipy import optimize  # imported here: scipy.optimize takes 0.3 s to import
+
         kappa = float(optimize.brentq(a, 1e-9, 1e7, xtol=1e-12, rtol=1e-12))
     trend, plunge = trend_plunge(resultant)  # the mean normal as a line: its pole
     return {"dip": 90.0 - plunge, "dip_direction": (trend + 180.0) % 360.0,
@@ -106,6 +108,8 @@ class Distribution:
 
     def frozen(self) -> Any:
         """The scipy.stats distribution with this mean (and sd)."""
+        from scipy import stats  # imported here: scipy.stats takes 0.3 s to import
+
         if self.kind == "fixed":
             return stats.rv_discrete(values=([self.mean], [1.0]))
         if self.kind == "exponential":

@@ -28,12 +28,24 @@ def scene_failed(exc: SceneError) -> int:
     return EXIT_SCENE
 
 
-def load_scene(path: str, quiet: bool = False) -> BuildResult:
+def load_scene(path: str, quiet: bool = False, service_limits: bool = False) -> BuildResult:
     """Build the scene at `path` (SceneError on any problem); warnings go to stderr (unless
-    `quiet`: a --json document carries them)."""
+    `quiet`: a --json document carries them). With `service_limits`, the scene must also
+    keep a server's limits (POLYDDA_MAX_* settings), checked before anything is cut."""
     from schemas.convert import build_model
 
-    result = build_model(Path(path))
+    if service_limits:
+        from schemas.errors import SceneError
+        from schemas.scene import load_scene as parse
+        from service.settings import Settings, limit_problems
+
+        scene = parse(Path(path))
+        problems = limit_problems(scene, Settings())
+        if problems:
+            raise SceneError(problems)
+        result = build_model(scene)
+    else:
+        result = build_model(Path(path))
     if not quiet:
         for w in result.warnings:
             print(f"warning: {w}", file=sys.stderr)

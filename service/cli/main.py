@@ -16,15 +16,33 @@ import argparse
 import importlib
 import os
 import sys
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterator, Sequence
 
-from schemas.errors import SceneError
 from service.cli.common import EXIT_OK, EXIT_SCENE, scene_failed
-from service.documents import SEARCH_DISTANCE_RATIO
-from service.jobs.processes import PROCESS_IDS
 from service.jobs.worker import add_arguments as worker_options
 
 __all__ = ["build_parser", "main"]
+
+#: service.documents.SEARCH_DISTANCE_RATIO, written out: the parser imports no numpy
+#: (tests/test_cli.py checks that the two agree)
+SEARCH_DISTANCE_HELP = "contact search distance in m (default 0.001 x model size)"
+
+
+class _ProcessIds:
+    """The service's process ids (service.jobs.processes.PROCESS_IDS) as argparse choices,
+    imported only when argparse checks or lists them (not for --version or --help)."""
+
+    @staticmethod
+    def _ids() -> tuple[str, ...]:
+        from service.jobs.processes import PROCESS_IDS
+
+        return PROCESS_IDS
+
+    def __contains__(self, value: object) -> bool:
+        return value in self._ids()
+
+    def __iter__(self) -> Iterator[str]:
+        return iter(self._ids())
 
 
 def _command(module: str, name: str) -> Callable[[argparse.Namespace], int]:
@@ -64,14 +82,17 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("scene", help="scene JSON file")
     p.add_argument("--json", action="store_true", help="print one JSON document")
     p.add_argument("--search-distance", type=float, metavar="M",
-                   help=f"contact search distance in m (default {SEARCH_DISTANCE_RATIO:g} x "
-                        "model size)")
+                   help=SEARCH_DISTANCE_HELP)
     p.set_defaults(func=_command("scenes", "cmd_contacts"))
 
     p = sub.add_parser("validate", help="check a scene and report every problem")
     p.add_argument("scene", help="scene JSON file")
     p.add_argument("--json", action="store_true",
                    help="print one JSON document (valid, blocks, warnings, problems)")
+    p.add_argument("--service-limits", action="store_true",
+                   help="also check a server's size limits (POLYDDA_MAX_BLOCKS, "
+                        "POLYDDA_MAX_VERTICES, POLYDDA_MAX_DURATION, POLYDDA_MAX_STEPS; "
+                        "stricter than the format's), as `polydda submit` would meet them")
     p.set_defaults(func=_command("scenes", "cmd_validate"))
 
     p = sub.add_parser("run", help="run the simulation of a scene")
@@ -168,8 +189,8 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("submit", help="submit a scene to a running server")
     p.add_argument("scene", help="scene JSON file")
     p.add_argument("--url", default="http://127.0.0.1:8000", help="server URL")
-    p.add_argument("--process", choices=PROCESS_IDS,
-                   help="default: from the scene's analysis.type")
+    p.add_argument("--process", choices=_ProcessIds(), metavar="PROCESS",
+                   help="%(choices)s (default: from the scene's analysis.type)")
     p.add_argument("--api-key", help="API key, if the server requires one")
     p.add_argument("--wait", action="store_true", help="follow the job to its end")
     p.add_argument("--retries", type=int, default=5, metavar="N",
@@ -202,6 +223,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         args = parser.parse_args(argv)
     except SystemExit as exc:  # --help or a usage error
         return int(exc.code or 0)
+    from schemas.errors import SceneError  # pydantic: after --help / --version
+
     try:
         return int(args.func(args))
     except SceneError as exc:  # any command that builds a scene: problems, exit 2

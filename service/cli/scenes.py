@@ -6,14 +6,17 @@ from __future__ import annotations
 import argparse
 import sys
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
-from schemas.convert import BuildResult, build_model
 from schemas.errors import SceneError
 from schemas.scene import SCHEMA_VERSION, scene_json_schema
 from service.cli.common import EXIT_IO, EXIT_OK, EXIT_SCENE, load_scene, print_json
 from service.documents import blocks_document, scene_contacts_document, surface
+
+if TYPE_CHECKING:
+    from schemas.convert import BuildResult
 
 # --------------------------------------------------------------------------- export
 
@@ -134,13 +137,14 @@ def cmd_validate(args: argparse.Namespace) -> int:
     """Check a scene completely (including cutting and overlaps); print `ok` or the problems
     (with --json: one document `{"valid", "blocks", "fixed", "warnings", "problems"}`)."""
     if not args.json:
-        result = load_scene(args.scene)
-        n = len(result.model.blocks)
+        result = load_scene(args.scene, service_limits=args.service_limits)
+        n, w = len(result.model.blocks), len(result.warnings)
         print(f"ok: {n} block{'s' if n != 1 else ''}, "
-              f"{sum(b.fixed for b in result.model.blocks)} fixed")
+              f"{sum(b.fixed for b in result.model.blocks)} fixed"
+              + (f" ({w} warning{'s' if w != 1 else ''})" if w else ""))
         return EXIT_OK
     try:
-        result = build_model(Path(args.scene))
+        result = load_scene(args.scene, quiet=True, service_limits=args.service_limits)
     except SceneError as exc:
         print_json({"valid": False, "problems": exc.problems})
         return EXIT_SCENE
@@ -148,4 +152,3 @@ def cmd_validate(args: argparse.Namespace) -> int:
                  "fixed": sum(b.fixed for b in result.model.blocks),
                  "warnings": result.warnings, "problems": []})
     return EXIT_OK
-
