@@ -301,10 +301,11 @@ def kinematics_document(result: KinematicResult) -> dict[str, Any]:
 
 
 def kinematics_text(result: KinematicResult) -> str:
-    """A short plain-text report: admissible modes, then each test's failed conditions."""
+    """A short plain-text report: the admissible sets and pairs of each mode, then every
+    test with each of its conditions, met or not, and the numbers."""
     s = result.slope
-    lines = [f"slope face {s.dip:g}/{s.dip_direction:03g}, friction angle {s.friction_angle:g}°"
-             f" (joints with their own joint material's φ use it)",
+    lines = [f"slope face {s.dip:g}/{s.dip_direction % 360:03g} (dip/dip direction), friction "
+             f"angle {s.friction_angle:g}° (joints with their own joint material's φ use it)",
              f"lateral limits: planar ±{result.limits.planar:g}°, flexural toppling "
              f"±{result.limits.flexural_toppling:g}°, direct toppling "
              f"±{result.limits.direct_toppling:g}°"]
@@ -320,10 +321,12 @@ def kinematics_text(result: KinematicResult) -> str:
         ok = [name(r) for r in rows if r.admissible]
         lines.append(f"{title}: " + (", ".join(ok) + " admissible" if ok else "none admissible"))
         for r in rows:
-            if r.admissible:
-                extra = f" (slides on {r.sliding_on})" if getattr(r, "sliding_on", None) else ""
-                lines.append(f"  {name(r)}: admissible{extra}")
-            else:
-                why = "; ".join(f"{c.test}: {c.detail}" for c in r.conditions if not c.passed)
-                lines.append(f"  {name(r)}: no ({why})")
+            extra = ""
+            if r.admissible and getattr(r, "sliding_on", None):
+                extra = (" (slides on both planes)" if r.sliding_on == "both"
+                         else f" (slides on {r.sliding_on} alone)")
+            lines.append(f"  {name(r)}: {'admissible' if r.admissible else 'not admissible'}"
+                         f"{extra}")
+            lines.extend(f"    {'met    ' if c.passed else 'not met'}  {c.test}: {c.detail}"
+                         for c in r.conditions)
     return "\n".join(lines)

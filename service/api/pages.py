@@ -268,11 +268,12 @@ def _kinematics_section(part: dict[str, Any] | None) -> str:
             who = "/".join(r[names]) if names == "sets" else r[names]
             line = (f"trend {r['trend']:.2f}°, plunge {r['plunge']:.2f}°; "
                     if r.get("trend") is not None else "")
-            failed = [f"{c['test']}: {c['detail']}" for c in r["conditions"] if not c["passed"]]
-            rows.append([title, who, "admissible" if r["admissible"] else "no",
-                         line + ("; ".join(failed) if failed else "every condition met")])
-    out.append("<h3>Tests</h3>" + _table(rows, ["mode", "set(s)", "result",
-                                                "intersection; conditions not met"]))
+            met, unmet = ("; ".join(f"{c['test']}: {c['detail']}" for c in r["conditions"]
+                                    if c["passed"] is ok) or "–" for ok in (True, False))
+            rows.append([title, who, "admissible" if r["admissible"] else "not admissible",
+                         line.rstrip("; ") or "–", met, unmet])
+    out.append("<h3>Tests</h3>" + _table(rows, ["mode", "set(s)", "result", "intersection",
+                                                "conditions met", "conditions not met"]))
     out.append(_figure(part["src"], "Equal-area lower-hemisphere stereonet of the joints, "
                        "the slope face and the tests' zones", "stereonet"))
     return "".join(out)
