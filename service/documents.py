@@ -237,6 +237,35 @@ def run_summary(summary: dict[str, Any], build: BuildResult) -> dict[str, Any]:
     return finite(doc)
 
 
+#: a free block whose centroid moved less than this (m) counts as not moved in the summaries
+#: and reports (the penalty springs settle blocks by micrometres; sliding is centimetres)
+MOVED_THRESHOLD = 0.01
+
+
+def movement(blocks: list[dict[str, Any]], fixed: list[bool],
+             threshold: float = MOVED_THRESHOLD) -> dict[str, Any]:
+    """The summary's blocks split for people: the free blocks whose centroid moved more than
+    `threshold` m, largest first (`moved`: name, displacement, magnitude), how many free
+    blocks moved less (`still`, the largest of them `still_max`) and how many are fixed."""
+    free = [(b, float(np.linalg.norm(b.get("displacement") or [0.0, 0.0, 0.0])))
+            for k, b in enumerate(blocks) if not (k < len(fixed) and fixed[k])]
+    moved = sorted(((b, u) for b, u in free if u > threshold), key=lambda x: -x[1])
+    still = [u for _, u in free if u <= threshold]
+    return {"threshold": threshold,
+            "moved": [{"name": b.get("name", ""), "displacement": list(b["displacement"]),
+                       "magnitude": u} for b, u in moved],
+            "still": len(still), "still_max": max(still, default=0.0),
+            "fixed": len(blocks) - len(free)}
+
+
+def fos_bracket(runs: list[dict[str, Any]], key: str = "factor") -> tuple[float, float] | None:
+    """The last bisection bracket of a factor-of-safety (or kh) search: the largest value
+    that held and the smallest that failed (None without both)."""
+    held = [r[key] for r in runs if not r.get("failed") and isinstance(r.get(key), float)]
+    fail = [r[key] for r in runs if r.get("failed") and isinstance(r.get(key), float)]
+    return (max(held), min(fail)) if held and fail else None
+
+
 def fos_controls(build: BuildResult) -> StrengthReductionControls:
     """Strength-reduction controls from the scene's `analysis.factor_of_safety` (built by
     the schema with the engine's defaults): times, tolerance, bounds, the weakened joint

@@ -36,9 +36,12 @@ def test_blocks_text(capsys: pytest.CaptureFixture[str]) -> None:
     assert code == 0 and err == ""
     lines = out.splitlines()
     assert lines[0] == "2 blocks"
-    assert lines[2].split() == ["B1", "2770.23", "concave", "yes"]
-    assert lines[3].split() == ["B2", "29.7708", "convex", "no"]
-    assert lines[-1] == "total volume: 2800 m3"
+    assert lines[1].split() == ["name", "volume", "(m³)", "shape", "fixed", "centroid", "x,",
+                                "y,", "z", "(m)"]
+    assert lines[2].split() == ["B1", "2770.23", "concave", "yes", "-0.006,", "3.056,", "4.957"]
+    # the wedge's centroid is the mean of its 4 vertices (a tetrahedron)
+    assert lines[3].split() == ["B2", "29.7708", "convex", "no", "0.601,", "-2.250,", "9.032"]
+    assert lines[-1] == "total volume: 2800 m³"
 
 
 def test_blocks_json(capsys: pytest.CaptureFixture[str]) -> None:
@@ -130,7 +133,8 @@ def test_contacts_of_the_wedge(capsys: pytest.CaptureFixture[str]) -> None:
 def test_contacts_text_and_search_distance(capsys: pytest.CaptureFixture[str]) -> None:
     stack = str(EXAMPLES / "stack.json")
     code, out, _ = run(capsys, "contacts", stack, "--search-distance", "0.01")
-    assert code == 0 and "search distance 0.01 m" in out.splitlines()[0]
+    assert code == 0 and "search distance 10.0 mm" in out.splitlines()[0]
+    assert "gap=0 µm" in out.splitlines()[1]
     code, out, _ = run(capsys, "contacts", stack, "--json")
     pairs = {frozenset((c["block_i"], c["block_j"])) for c in json.loads(out)["contacts"]}
     assert pairs == {frozenset(p) for p in [("top", "middle"), ("middle", "bottom"),

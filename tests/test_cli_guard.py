@@ -51,12 +51,14 @@ def test_25001_explicit_blocks_are_refused_within_5_s(
         capsys: pytest.CaptureFixture[str], tmp_path: Path, command: str) -> None:
     """25,001 cubes (200,008 vertices) exceed the format's 20,000 blocks and 200,000
     vertices: every command that loads a scene refuses them before validating a block
-    (it took over 600 s), in one line per limit, exit 2, nothing written."""
+    (it took over 600 s), in one line per limit, exit 2, nothing written. The 5 s are CPU
+    time (about 0.5 s here: reading 7.6 MB of JSON); on a machine shared at a load of 10,
+    the wall time is several times that."""
     path = write(tmp_path, cubes(25_001))
     extra = ["--out", str(tmp_path / "r.h5")] if command == "run" else []
-    t0 = time.monotonic()
+    t0, cpu0 = time.monotonic(), time.process_time()
     code, out, err = run(capsys, command, path, *extra)
-    assert time.monotonic() - t0 < 5
+    assert time.process_time() - cpu0 < 5 and time.monotonic() - t0 < 60
     assert code == 2 and out == ""
     assert err.splitlines() == ["the scene has 200,008 vertices in all; the limit is 200,000",
                                 "blocks: 25,001 blocks; the limit is 20,000"]

@@ -12,6 +12,7 @@ from typing import Any
 from schemas.convert import build_model
 from schemas.errors import SceneError
 from service.cli.common import EXIT_IO, EXIT_OK, EXIT_SCENE, note_compilation, print_json
+from service.cli.progress import Progress
 from service.documents import kinematic_result, kinematics_document, kinematics_text
 
 
@@ -82,21 +83,24 @@ def cmd_sweep(args: argparse.Namespace) -> int:
         return EXIT_SCENE
     spec = spec_of_scene(dict(scene, sweep=section))  # SceneError: exit 2
 
-    def note(done: int, n: int, now: int) -> None:
-        if not args.quiet:
-            print(f"realisation {done}/{n} done ({now} evaluated now)", file=sys.stderr,
-                  flush=True)
-
     if args.server is not None:
         return _sweep_on_server(args, scene, spec)
     if spec.mode == "dda" and not args.quiet:
         note_compilation()
+    bar = Progress(f"sweep {Path(args.scene).stem}", spec.n, unit="realisation",
+                   enabled=not args.quiet)
+
+    def note(done: int, n: int, now: int) -> None:
+        bar.update(done, f"{done:,} of {n:,} realisations", total=n, base=done - now)
+
     try:
         doc = run_sweep(scene, spec, Path(args.out), workers=args.workers, progress=note,
                         limit=args.limit)
     except ValueError as exc:
         print(f"polydda sweep: {exc}", file=sys.stderr)
         return EXIT_SCENE
+    finally:
+        bar.close()
     return _print_sweep(args, spec, doc)
 
 
@@ -109,13 +113,12 @@ def _sweep_on_server(args: argparse.Namespace, scene: dict[str, Any], spec: Any)
 
     scene = dict(scene, sweep=spec.scene_sweep())
     headers = {"X-API-Key": args.api_key} if args.api_key else {}
-    last = [-1]
+    bar = Progress(f"sweep {Path(args.scene).stem} on {args.server}", spec.n,
+                   unit="realisation", enabled=not args.quiet)
 
     def note(done: int, n: int, statuses: list[dict[str, Any]]) -> None:
-        if not args.quiet and done != last[0]:
-            last[0] = done
-            states = ", ".join(s["status"] for s in statuses)
-            print(f"{done}/{n} realisations done ({states})", file=sys.stderr, flush=True)
+        states = ", ".join(s["status"] for s in statuses)
+        bar.update(done, f"{done:,} of {n:,} realisations (jobs: {states})", total=n)
 
     try:
         with httpx.Client(base_url=args.server.rstrip("/"), headers=headers,
@@ -127,11 +130,15 @@ def _sweep_on_server(args: argparse.Namespace, scene: dict[str, Any], spec: Any)
     except (Unreachable, ServiceError) as exc:
         print(f"polydda sweep: {exc}", file=sys.stderr)
         return EXIT_IO if isinstance(exc, Unreachable) else EXIT_SCENE
+    finally:
+        bar.close()
     return _print_sweep(args, spec, doc)
 
 
 def _print_sweep(args: argparse.Namespace, spec: Any, doc: dict[str, Any]) -> int:
-    """The sweep's aggregate: JSON (--json) or a few lines."""
+    """The sweep's aggregate: JSON (--json) or a few lines; and its FS histogram and CDF
+    (DIR/sweep.png, the figure of the service's report) once a realisation has an FS."""
+    png = _sweep_figure(Path(args.out), spec, doc)
     if args.json:
         print_json({k: v for k, v in doc.items() if k != "realisations"})
         return EXIT_OK
@@ -139,13 +146,27 @@ def _print_sweep(args: argparse.Namespace, spec: Any, doc: dict[str, Any]) -> in
         a = doc.get(key)
         if a and a["n"]:
             lo, hi = a["pof_interval_95"]
-            print(f"{key}: {a['n']} realisations, probability of failure "
+            print(f"{key}: {a['n']:,} realisations, probability of failure "
                   f"{100 * a['probability_of_failure']:.2f} % (95 % interval {100 * lo:.1f} to "
-                  f"{100 * hi:.1f} %), FS mean {a['mean']:.4f}, min {a['min']:.4f}")
+                  f"{100 * hi:.1f} %), FS mean {a['mean']:.3f}, min {a['min']:.3f}")
     if doc.get("pof_difference") is not None:
         print(f"PoF difference ({spec.mode} - analytic): "
               f"{100 * doc['pof_difference']:.2f} percentage points; FS relative difference "
               f"max {100 * doc['fs_relative_difference']['max_abs']:.2f} %")
     print(f"written: {Path(args.out) / 'sweep.json'}")
+    if png is not None:
+        print(f"written: {png}")
     return EXIT_OK
+
+
+def _sweep_figure(out: Path, spec: Any, doc: dict[str, Any]) -> Path | None:
+    """DIR/sweep.png: histogram and empirical CDF of FS per method (None: no FS yet)."""
+    aggs = {spec.mode: doc.get(spec.mode) or {}}
+    if spec.mode != "analytic" and doc.get("analytic"):
+        aggs["analytic (eq. 51)"] = doc["analytic"]
+    if not any((a.get("histogram") or {}).get("counts") for a in aggs.values()):
+        return None
+    from engine.results.plots import plot_fs_distribution
+
+    return plot_fs_distribution(aggs, out / "sweep.png")
 

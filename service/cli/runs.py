@@ -5,9 +5,9 @@ from __future__ import annotations
 
 import argparse
 import sys
-import time
 from collections.abc import Callable
 from pathlib import Path
+from typing import Any
 
 from engine.analyses.strength_reduction import (
     TrialRun,
@@ -15,8 +15,10 @@ from engine.analyses.strength_reduction import (
     factor_of_safety,
 )
 from engine.results.writer import ResultWriter
-from engine.step.simulation import STATUS_COMPLETED, Progress, run
+from engine.step.simulation import STATUS_COMPLETED, run
+from engine.step.simulation import Progress as RunProgress
 from schemas.scene import SCHEMA_VERSION
+from service import readable as rd
 from service.cli.common import (
     EXIT_IO,
     EXIT_OK,
@@ -25,37 +27,30 @@ from service.cli.common import (
     note_compilation,
     print_json,
 )
+from service.cli.progress import Progress, bisection_total
 from service.documents import (
+    fos_bracket,
     fos_controls,
     fos_document,
+    movement,
     run_summary,
     seismic_controls,
     seismic_document,
     write_json_atomic,
 )
 
+#: blocks listed at the end of `polydda run` (the ones that moved most)
+SHOWN_BLOCKS = 10
 
-class _ProgressPrinter:
-    """Prints run progress to stderr: in place on a terminal, else every 10 %."""
 
-    def __init__(self, label: str) -> None:
-        self.label = label
-        self.tty = sys.stderr.isatty()
-        self.last_wall = 0.0
-        self.last_decile = -1
+def _run_progress(bar: Progress) -> Callable[[RunProgress], None]:
+    """The engine's progress callback feeding `bar` (simulated seconds)."""
 
-    def __call__(self, p: Progress) -> None:
-        now = time.monotonic()
-        decile = int(10 * p.fraction)
-        if self.tty and now - self.last_wall < 0.2 and p.fraction < 1:
-            return
-        if not self.tty and decile == self.last_decile:
-            return
-        self.last_wall, self.last_decile = now, decile
-        line = (f"{self.label}: step {p.step}  t = {p.time:.4g} / {p.duration:g} s  "
-                f"({100 * p.fraction:.0f} %)  dt = {p.dt:.3g} s")
-        print(("\r" + line) if self.tty else line, end="" if self.tty else "\n",
-              file=sys.stderr, flush=True)
+    def note(p: RunProgress) -> None:
+        bar.update(p.time, f"t = {p.time:.3f} s, step {p.step:,}, "
+                           f"Δt {rd.seconds(p.dt)}", total=p.duration)
+
+    return note
 
 
 def cmd_run(args: argparse.Namespace) -> int:
@@ -70,12 +65,16 @@ def cmd_run(args: argparse.Namespace) -> int:
     except OSError as exc:
         print(f"cannot write {out}: {exc}", file=sys.stderr)
         return EXIT_IO
-    printer = None if args.quiet or args.json else _ProgressPrinter(Path(args.scene).stem)
-    if printer is not None:
+    show = not (args.quiet or args.json)
+    if show:
         note_compilation()
-    res = run(built.model, recorder=writer, progress=printer, scene_json=scene_text)
-    if printer is not None and printer.tty:
-        print(file=sys.stderr)
+    bar = Progress(f"run {Path(args.scene).stem}", built.model.controls.duration,
+                   unit="s", enabled=show)
+    try:
+        res = run(built.model, recorder=writer, progress=_run_progress(bar) if show else None,
+                  scene_json=scene_text)
+    finally:
+        bar.close()
     summary = run_summary(res.summary, built)
     if args.summary:
         try:
@@ -86,61 +85,145 @@ def cmd_run(args: argparse.Namespace) -> int:
     if args.json:
         print_json(summary | {"result": str(out)})
         return EXIT_OK if res.status == STATUS_COMPLETED else EXIT_RUN
-    print(f"{res.status}: {res.steps} steps, {res.state.time:.6g} s simulated in "
-          f"{res.wall_time:.3g} s; max penetration {res.max_penetration:.3g} m; "
-          f"result {out}", file=sys.stderr)
-    if res.message:
-        print(res.message, file=sys.stderr)
-    for w in res.summary.get("warnings", []):
-        print(f"warning: {w}", file=sys.stderr)
+    fixed = [b.fixed for b in built.model.blocks]
+    print("\n".join(run_text(summary, fixed, str(out))))
     return EXIT_OK if res.status == STATUS_COMPLETED else EXIT_RUN
 
 
+def run_text(summary: dict[str, Any], fixed: list[bool], result: str) -> list[str]:
+    """What `polydda run` prints at its end: how the run ended, then the free blocks that
+    moved more than the threshold (largest first, with units), then the warnings."""
+    lines = [f"{summary['status']}: {summary['steps']:,} steps, "
+             f"{rd.seconds(summary['simulated_time'])} simulated in "
+             f"{rd.duration(summary['wall_time'])}; largest penetration "
+             f"{rd.length(summary.get('max_penetration') or 0.0)}; result {result}"]
+    if summary.get("message"):
+        lines.append(summary["message"])
+    m = movement(summary.get("blocks") or [], fixed)
+    moved, limit = m["moved"], rd.length(m["threshold"])
+    if moved:
+        unit, scale = rd.lengths_unit([b["magnitude"] for b in moved])
+        d = 3 if unit == "m" else 1
+        width = max(5, *(len(b["name"]) for b in moved[:SHOWN_BLOCKS]))
+        lines.append(f"{rd.plural(len(moved), 'free block')} moved more than {limit}:")
+        lines.append(f"  {'block':<{width}}  {'|u| (' + unit + ')':>10}  "
+                     f"{'u_x':>9}  {'u_y':>9}  {'u_z':>9}  trend/plunge (°)")
+        for b in moved[:SHOWN_BLOCKS]:
+            u = b["displacement"]
+            lines.append(f"  {b['name']:<{width}}  {rd.fixed(b['magnitude'] * scale, d):>10}  "
+                         + "  ".join(f"{rd.fixed(x * scale, d):>9}" for x in u)
+                         + f"  {_trend_plunge(u)}")
+        if len(moved) > SHOWN_BLOCKS:
+            lines.append(f"  ... and {len(moved) - SHOWN_BLOCKS} more (all in the summary: "
+                         "--summary FILE)")
+    else:
+        lines.append(f"no free block moved more than {limit}")
+    if m["still"] and moved:
+        lines.append(f"{rd.plural(m['still'], 'other free block')} moved less "
+                     f"(at most {rd.length(m['still_max'])})")
+    elif m["still"]:
+        lines.append(f"the largest displacement of a free block is {rd.length(m['still_max'])}")
+    lines += [f"warning: {w}" for w in summary.get("warnings", [])]
+    return lines
 
-def _trial_printer(args: argparse.Namespace, factor: str) -> Callable[[TrialRun], None]:
-    """The progress line of a bisection trial (`factor` formats the value tried), printed
-    to stderr unless --quiet; says first when the kernels still have to compile."""
+
+def _trend_plunge(u: list[float]) -> str:
+    """The direction of a displacement as trend/plunge in degrees: 172/29 (up: negative)."""
+    import math
+
+    dx, dy, dz = u
+    if dx == dy == dz == 0:
+        return "–"
+    trend = math.degrees(math.atan2(dx, dy)) % 360.0
+    plunge = math.degrees(math.atan2(-dz, math.hypot(dx, dy)))
+    return f"{trend:03.0f}/{plunge:.0f}"
+
+
+def _trials(args: argparse.Namespace, label: str, what: str, tolerance: float,
+            max_runs: int, relative_to: str) -> tuple[Progress, Callable[[TrialRun], None]]:
+    """The progress of a bisection (`what` names the value tried, e.g. `F`): a bar over the
+    estimated number of trials and one line per trial with its verdict; says first when
+    the kernels still have to compile. Nothing with --quiet."""
     if not args.quiet:
         note_compilation()
+    total = bisection_total([], tolerance, max_runs, relative_to)
+    bar = Progress(label, total, unit="trial", enabled=not args.quiet, tenths=False)
+    seen: list[tuple[float, bool]] = []
 
     def note(r: TrialRun) -> None:
-        if not args.quiet:
-            verdict = "fails" if r.failed else "holds"
-            print(f"{factor.format(r.factor)}: {verdict} (mean acceleration "
-                  f"{r.mean_acceleration:.3g} m/s²)", file=sys.stderr, flush=True)
+        seen.append((r.factor, r.failed))
+        total = bisection_total(seen, tolerance, max_runs, relative_to)
+        verdict = "fails" if r.failed else "holds"
+        bar.update(len(seen), f"{what} = {r.factor:.4g} {verdict}", total=total)
+        bar.event(f"trial {len(seen)} of about {total}: {what} = {r.factor:.4g} {verdict} "
+                  f"(mean acceleration {r.mean_acceleration:.3f} m/s²)")
 
-    return note
+    return bar, note
 
 
 def cmd_fos(args: argparse.Namespace) -> int:
     """Factor of safety by strength reduction (bisection on tan φ / F)."""
     built = load_scene(args.scene)
-    note = _trial_printer(args, "F = {:.4f}")
-    result = factor_of_safety(built.model, fos_controls(built), progress=note)
+    c = fos_controls(built)
+    bar, note = _trials(args, f"fos {Path(args.scene).stem}", "F", c.tolerance, c.max_runs,
+                        "lo")
+    try:
+        result = factor_of_safety(built.model, c, progress=note)
+    finally:
+        bar.close()
     doc = fos_document(result, built)
     if args.json:
         print_json(doc)
     else:
-        print(f"factor of safety {result.factor_of_safety:.4f} "
-              f"(critical friction angle {doc['critical_friction_angle']}) "
-              f"from {len(result.runs)} runs")
-        if result.message:
-            print(result.message)
+        print("\n".join(fos_text(doc)))
     return EXIT_OK if result.status == STATUS_COMPLETED else EXIT_RUN
+
+
+def fos_text(doc: dict[str, Any]) -> list[str]:
+    """The factor of safety for people: the value to two decimals, how it was found (trial
+    runs, the last bracket), the critical friction angle of each weakened joint material."""
+    runs = doc.get("runs") or []
+    fs = doc.get("factor_of_safety")
+    if not isinstance(fs, float):
+        return [f"no factor of safety ({doc.get('status')}): {doc.get('message', '')}"]
+    bracket = fos_bracket(runs)
+    how = (f"strength reduction, bisection on tan φ / F over {rd.plural(len(runs), 'trial run')}"
+           + (f": holds at F = {bracket[0]:.4g}, fails at {bracket[1]:.4g}" if bracket else ""))
+    lines = [f"factor of safety {fs:.2f} ({how})"]
+    phis = doc.get("critical_friction_angle")
+    phis = phis if isinstance(phis, list) else [phis]
+    names = doc.get("joint_materials") or []
+    for name, phi in zip(names, phis, strict=False):
+        if isinstance(phi, float):
+            lines.append(f"critical friction angle of '{name}': {rd.angle(phi)}")
+    if doc.get("message"):
+        lines.append(doc["message"])
+    lines += [f"warning: {w}" for w in doc.get("warnings", [])]
+    return lines
 
 
 def cmd_seismic(args: argparse.Namespace) -> int:
     """Critical (yield) seismic coefficient by bisection on kh."""
     built = load_scene(args.scene)
-    note = _trial_printer(args, "kh = {:.5f}")
-    result = critical_seismic_coefficient(built.model, seismic_controls(built), progress=note)
+    c = seismic_controls(built)
+    bar, note = _trials(args, f"seismic {Path(args.scene).stem}", "kh", c.tolerance,
+                        c.max_runs, "hi")
+    try:
+        result = critical_seismic_coefficient(built.model, c, progress=note)
+    finally:
+        bar.close()
     doc = seismic_document(result, built)
     if args.json:
         print_json(doc)
     else:
-        print(f"critical seismic coefficient kh = {result.critical_coefficient:.5f} "
-              f"(azimuth {result.azimuth_deg:g}°, kv {result.kv:g}) "
-              f"from {len(result.runs)} runs")
+        bracket = fos_bracket(doc.get("runs") or [], key="kh")
+        print(f"critical seismic coefficient kh = {result.critical_coefficient:.3f} "
+              f"(horizontal force towards {result.azimuth_deg:03.0f}°, kv "
+              f"{result.kv:g}; bisection over {rd.plural(len(result.runs), 'trial run')}"
+              + (f": holds at kh = {bracket[0]:.4g}, fails at {bracket[1]:.4g})"
+                 if bracket else ")"))
         if result.message:
             print(result.message)
+        for w in doc.get("warnings", []):
+            print(f"warning: {w}")
     return EXIT_OK if result.status == STATUS_COMPLETED else EXIT_RUN

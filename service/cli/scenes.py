@@ -12,6 +12,7 @@ import numpy as np
 
 from schemas.errors import SceneError
 from schemas.scene import SCHEMA_VERSION, scene_json_schema
+from service import readable as rd
 from service.cli.common import EXIT_IO, EXIT_OK, EXIT_SCENE, load_scene, print_json
 from service.documents import blocks_document, scene_contacts_document, surface
 
@@ -93,14 +94,16 @@ def cmd_blocks(args: argparse.Namespace) -> int:
         print_json(blocks_document(result))
         return EXIT_OK
     width = max([len(n) for n in result.block_names] + [5])
-    print(f"{len(blocks)} block{'s' if len(blocks) != 1 else ''}")
-    print(f"{'name':<{width}}  {'volume (m3)':>14}  {'shape':<7}  fixed")
+    print(rd.plural(len(blocks), "block"))
+    print(f"{'name':<{width}}  {'volume (m³)':>12}  {'shape':<7}  {'fixed':<5}  "
+          "centroid x, y, z (m)")
     for name, b in zip(result.block_names, blocks, strict=True):
         shape = "convex" if b.polyhedron.is_convex else "concave"
-        print(f"{name:<{width}}  {b.polyhedron.volume:>14.6g}  {shape:<7}  "
-              f"{'yes' if b.fixed else 'no'}")
+        c = ", ".join(f"{x:.3f}" for x in b.polyhedron.centroid)
+        print(f"{name:<{width}}  {rd.number(b.polyhedron.volume, 6):>12}  {shape:<7}  "
+              f"{'yes' if b.fixed else 'no':<5}  {c}")
     total = sum(b.polyhedron.volume for b in blocks)
-    print(f"total volume: {total:.6g} m3")
+    print(f"total volume: {rd.volume(total)}")
     if args.export is not None:
         print(f"written: {args.export}")
     return EXIT_OK
@@ -117,13 +120,13 @@ def cmd_contacts(args: argparse.Namespace) -> int:
     if args.json:
         print_json(doc)
         return EXIT_OK
-    print(f"{len(rows)} contact constraint{'s' if len(rows) != 1 else ''} "
-          f"(search distance {search:.3g} m)")
+    print(f"{rd.plural(len(rows), 'contact constraint')} (search distance "
+          f"{rd.length(search)})")
     for k, c in enumerate(rows, 1):
         pt = ", ".join(f"{x:.3f}" for x in c["point_i"])
         nm = ", ".join(f"{x:.3f}" for x in c["normal"])
         print(f"{k:>4}  {c['block_i']} / {c['block_j']}  {c['type']:<13} ({pt})  "
-              f"n=({nm})  {c['mode']:<7} gap={c['gap']:.3g} m")
+              f"n=({nm})  {c['mode']:<7} gap={rd.length(c['gap'])}")
     return EXIT_OK
 
 
