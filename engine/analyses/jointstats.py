@@ -21,7 +21,7 @@ import numpy as np
 from engine.analyses.kinematics import normal, trend_plunge
 
 __all__ = ["Distribution", "fisher_angles", "fisher_angles_of", "fisher_fit",
-           "fisher_orientations", "plane_positions", "scatter_about"]
+           "fisher_orientations", "fisher_stats", "plane_positions", "scatter_about"]
 
 
 def fisher_angles(kappa: float, n: int, rng: np.random.Generator) -> np.ndarray:
@@ -79,6 +79,12 @@ def fisher_fit(dips: Any, dip_directions: Any) -> dict[str, float]:
                                                  strict=True)])
     first = v.sum(axis=0)
     v[v @ first < 0] *= -1.0
+    return fisher_stats(v)
+
+
+def fisher_stats(v: np.ndarray) -> dict[str, float]:
+    """Mean plane (dip, dip direction in degrees), mean resultant length R̄ and maximum-
+    likelihood κ of unit normals `v (n, 3)` already turned to one side."""
     resultant = v.sum(axis=0)
     r_bar = float(np.linalg.norm(resultant) / len(v))
     if r_bar >= 1.0 - 1e-12:

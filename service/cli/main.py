@@ -124,6 +124,30 @@ def build_parser() -> argparse.ArgumentParser:
     p.set_defaults(func=_command("analyses", "cmd_kinematics"))
 
     p = sub.add_parser(
+        "stereonet", help="measured orientations: pole density, sets, Fisher mean and κ",
+        description="read dip / dip direction measurements (CSV), contour their poles' "
+                    "density on an equal-area stereonet, pick the sets (k-means on the "
+                    "sphere) and fit each one's Fisher mean, κ and 95 % cone; with --scene "
+                    "and --out, write them as the scene's joints (and with --sweep, as the "
+                    "sweep's Fisher parameters of their orientation)")
+    p.add_argument("measurements", help="CSV file: columns dip, dip_direction (degrees)")
+    p.add_argument("--sets", type=int, default=2, metavar="K",
+                   help="number of joint sets to pick (default 2)")
+    p.add_argument("--seed", type=int, default=0, help="seed of the k-means starts")
+    p.add_argument("--names", metavar="A,B",
+                   help="names of the sets, largest first (default J1, J2, ...)")
+    p.add_argument("--plot", metavar="OUT.png",
+                   help="the stereonet (default: MEASUREMENTS_stereonet.png beside the CSV)")
+    p.add_argument("--scene", metavar="SCENE.json", help="a scene to write the sets into")
+    p.add_argument("--out", metavar="NEW.json", help="where the scene with the sets goes")
+    p.add_argument("--spacing", type=float, metavar="M",
+                   help="spacing of joints added to the scene (default: one plane each)")
+    p.add_argument("--sweep", action="store_true",
+                   help="also add the sets' Fisher κ to the scene's sweep.parameters")
+    p.add_argument("--json", action="store_true", help="print one JSON document")
+    p.set_defaults(func=_command("orientations", "cmd_stereonet"))
+
+    p = sub.add_parser(
         "sweep", help="sweep or Monte Carlo analysis: probability of failure",
         description="N realisations of the scene's parameters (the scene's sweep.parameters, "
                     "or --parameter, or the joints' friction angle by --friction-mean / "
@@ -174,6 +198,32 @@ def build_parser() -> argparse.ArgumentParser:
                    help="3-D snapshot at this recorded solver step (comma-separated or "
                         "repeated)")
     p.set_defaults(func=_command("results", "cmd_plot"))
+
+    p = sub.add_parser("view", help="the 3-D viewer of a local result file in the browser",
+                       description="serve the viewer (and the report) of RESULT.h5 on a local "
+                                   "port and open it in the browser; Ctrl-C stops it")
+    p.add_argument("result", help="HDF5 result file (polydda run --out)")
+    p.add_argument("--host", default="127.0.0.1", help="address to listen on")
+    p.add_argument("--port", type=int, default=0, help="port (default: any free one)")
+    p.add_argument("--no-browser", action="store_true",
+                   help="print the address only; do not open a browser")
+    p.add_argument("--max-frames", type=int, default=2000, metavar="N",
+                   help="recorded steps the viewer loads at most (every k-th beyond)")
+    p.set_defaults(func=_command("results", "cmd_view"))
+
+    p = sub.add_parser("report", help="the printable report of a local result file",
+                       description="write the report of RESULT.h5 (conclusion, moving "
+                                   "blocks, plots, the scene) as one HTML file with its "
+                                   "figures inline, and a PDF of it when a Chromium is found")
+    p.add_argument("result", help="HDF5 result file (polydda run --out)")
+    p.add_argument("--out", metavar="REPORT.html",
+                   help="HTML file to write (default: the result's name with .html); the "
+                        "PDF goes beside it")
+    p.add_argument("--threshold", type=float, metavar="M",
+                   help="a free block that moved less than this many metres has not moved "
+                        "(default 0.01)")
+    p.add_argument("--no-pdf", action="store_true", help="write the HTML only")
+    p.set_defaults(func=_command("results", "cmd_report"))
 
     p = sub.add_parser("serve", help="start the REST API and its embedded workers")
     p.add_argument("--host", default="127.0.0.1", help="address to listen on")

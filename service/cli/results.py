@@ -84,3 +84,97 @@ def cmd_plot(args: argparse.Namespace) -> int:
         print(p)
     return EXIT_OK
 
+
+
+# --------------------------------------------------------------------------- view, report
+
+#: browsers that print a page to PDF headless, in the order they are looked for
+CHROMIUMS = ("chromium", "chromium-browser", "google-chrome", "google-chrome-stable")
+
+
+def cmd_view(args: argparse.Namespace) -> int:
+    """Serve the service's 3-D viewer for a local result file on a local port and open it
+    in the browser (until Ctrl-C)."""
+    import socket
+    import webbrowser
+
+    result = open_result_file("view", args.result)
+    if isinstance(result, int):
+        return result
+    result.close()
+    import uvicorn
+
+    from service.api.local import local_app
+
+    app = local_app(Path(args.result), max_frames=args.max_frames)
+    try:
+        sock = socket.create_server((args.host, args.port))
+    except OSError as exc:
+        print(f"polydda view: cannot listen on {args.host}:{args.port}: "
+              f"{exc.strerror or exc}", file=sys.stderr)
+        return EXIT_IO
+    port = sock.getsockname()[1]
+    viewer = next(r.path for r in app.routes if getattr(r, "path", "").endswith("/viewer"))
+    url = f"http://{args.host}:{port}{viewer}"
+    print(f"viewer: {url}\nreport: {url.removesuffix('/viewer')}/report\n"
+          "(Ctrl-C stops the server)", flush=True)
+    if not args.no_browser:
+        webbrowser.open(url)
+    server = uvicorn.Server(uvicorn.Config(app, log_level="warning"))
+    try:
+        server.run(sockets=[sock])
+    except KeyboardInterrupt:
+        pass
+    finally:
+        sock.close()
+    return EXIT_OK
+
+
+def cmd_report(args: argparse.Namespace) -> int:
+    """The printable report of a local result file as one HTML file (plots inline), and a
+    PDF of it when a Chromium is there to print it."""
+    result = open_result_file("report", args.result)
+    if isinstance(result, int):
+        return result
+    result.close()
+    from service.api.local import write_report
+
+    source = Path(args.result)
+    out = Path(args.out) if args.out else source.with_suffix(".html")
+    if args.threshold is not None and not args.threshold > 0:
+        print("--threshold: must be a positive length in m", file=sys.stderr)
+        return EXIT_SCENE
+    try:
+        write_report(source, out, args.threshold)
+    except OSError as exc:
+        print(f"polydda report: cannot write {out}: {exc.strerror or exc}", file=sys.stderr)
+        return EXIT_IO
+    print(f"written: {out}")
+    if args.no_pdf:
+        return EXIT_OK
+    pdf = out.with_suffix(".pdf")
+    note = print_pdf(out, pdf)
+    print(f"written: {pdf}" if note is None else f"no PDF: {note}",
+          file=sys.stdout if note is None else sys.stderr)
+    return EXIT_OK
+
+
+def print_pdf(html: Path, pdf: Path, timeout: float = 180.0) -> str | None:
+    """Print `html` to `pdf` with a headless Chromium; None when done, else why not."""
+    import shutil
+    import subprocess
+
+    browser = next((b for b in map(shutil.which, CHROMIUMS) if b), None)
+    if browser is None:
+        return ("no Chromium found (" + ", ".join(CHROMIUMS) + "); open the HTML report in a "
+                "browser and print it to PDF (its Print button)")
+    pdf.unlink(missing_ok=True)
+    cmd = [browser, "--headless", "--disable-gpu", "--no-sandbox", "--no-pdf-header-footer",
+           f"--print-to-pdf={pdf.resolve()}", html.resolve().as_uri()]
+    try:
+        subprocess.run(cmd, capture_output=True, timeout=timeout, check=False)
+    except (OSError, subprocess.TimeoutExpired) as exc:
+        return f"{Path(browser).name} did not print the report: {exc}"
+    if not pdf.is_file() or pdf.read_bytes()[:4] != b"%PDF":
+        return f"{Path(browser).name} did not print the report to {pdf}"
+    return None
