@@ -207,3 +207,24 @@ def test_the_help_states_the_documents_search_distance() -> None:
     from service.documents import SEARCH_DISTANCE_RATIO
 
     assert f"default {SEARCH_DISTANCE_RATIO:g} x model size" in SEARCH_DISTANCE_HELP
+
+
+def test_the_warnings_reach_a_service_job_and_its_report(tmp_path: Path) -> None:
+    """The same build runs for the service: a job of a scene with φ = 0.66° carries the
+    warning in its summary, and its report's conclusion names it."""
+    from tests.service_helpers import cube_scene, make_client, wait_final
+
+    scene = cube_scene(duration=0.01)
+    scene["joint_materials"] = {"joint": {"friction_angle": 0.66}}
+    with make_client(tmp_path / "data") as c:
+        r = c.post("/jobs", json=scene)
+        assert r.status_code == 201, r.text
+        url = r.headers["Location"]
+        assert wait_final(c, url, timeout=120)["status"] == "successful"
+        summary = c.get(url + "/results/summary.json").json()
+        report = c.get(url + "/report").text
+    warning = ("joint_materials.joint.friction_angle: 0.66° is a very low friction angle; if "
+               "0.66 is tan φ, the angle is 33.4° (friction angles are in degrees)")
+    assert warning in summary["warnings"]
+    conclusion = report.split("id='conclusion'>", 1)[1].split("<h2", 1)[0]
+    assert "<b>1 warning</b>: " + warning.replace("'", "&#x27;") in conclusion
