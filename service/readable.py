@@ -138,3 +138,20 @@ def value(x: Any) -> str:
 def plural(n: int, word: str, many: str | None = None) -> str:
     """`1 block`, `3 blocks`, `2 bodies` (with `many`)."""
     return f"{n:,} {word if n == 1 else (many or word + 's')}"
+
+
+def trend_plunge(d: Sequence[float]) -> tuple[float, float] | None:
+    """Trend (° clockwise from North, y) and plunge (° below horizontal) of a vector
+    (x East, y North, z up); None for a zero vector."""
+    dx, dy, dz = (float(x) for x in d)
+    if dx == dy == dz == 0.0:
+        return None
+    return (math.degrees(math.atan2(dx, dy)) % 360.0,
+            math.degrees(math.atan2(-dz, math.hypot(dx, dy))))
+
+
+def direction(d: Sequence[float]) -> str:
+    """A displacement's direction as geologists write it: 090/30 (trend/plunge, degrees;
+    a negative plunge points up); – for none."""
+    tp = trend_plunge(d)
+    return "–" if tp is None else f"{tp[0]:03.0f}/{tp[1]:.0f}"

@@ -21,7 +21,7 @@ from scipy.spatial.transform import Rotation
 from engine.results.plots import plot_snapshot
 from engine.results.reader import open_result
 from service.api.frames import decode_binary
-from service.api.report import trend_plunge
+from service.readable import trend_plunge
 from service.settings import Settings
 from tests.service_helpers import (
     TestClient,

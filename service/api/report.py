@@ -12,7 +12,6 @@ from __future__ import annotations
 
 import hashlib
 import json
-import math
 import platform
 from collections.abc import Iterable
 from dataclasses import dataclass, field
@@ -76,21 +75,6 @@ def _figure(src: str, caption: str, ident: str = "") -> str:
 
 def _norm(d: list[float]) -> float:
     return float(sum(x * x for x in d) ** 0.5)
-
-
-def trend_plunge(d: list[float]) -> tuple[float, float] | None:
-    """Trend (° clockwise from North, y) and plunge (° below horizontal) of a vector
-    (x East, y North, z up); None for a zero vector."""
-    dx, dy, dz = (float(x) for x in d)
-    if _norm([dx, dy, dz]) == 0:
-        return None
-    return (math.degrees(math.atan2(dx, dy)) % 360.0,
-            math.degrees(math.atan2(-dz, math.hypot(dx, dy))))
-
-
-def _direction(d: list[float]) -> str:
-    tp = trend_plunge(d)
-    return "–" if tp is None else f"{tp[0]:03.0f}/{tp[1]:.0f}"
 
 
 # --------------------------------------------------------------------------- conclusion
@@ -235,7 +219,7 @@ def _moving_blocks(summary: dict[str, Any], meta: dict[str, Any], threshold: flo
         rows.append([b["name"], rd.volume(volume[k]) if 0 <= k < len(volume) else "–",
                      rd.fixed(b["magnitude"] * scale, d),
                      *(rd.fixed(x * scale, d) for x in b["displacement"]),
-                     _direction(b["displacement"]), rd.fixed(_norm(v), 3)])
+                     rd.direction(b["displacement"]), rd.fixed(_norm(v), 3)])
     limit = rd.length(threshold)
     out = [f"<h2 id='moving'>Blocks that moved more than {limit}</h2>"]
     if rows:

@@ -112,7 +112,7 @@ def run_text(summary: dict[str, Any], fixed: list[bool], result: str) -> list[st
             u = b["displacement"]
             lines.append(f"  {b['name']:<{width}}  {rd.fixed(b['magnitude'] * scale, d):>10}  "
                          + "  ".join(f"{rd.fixed(x * scale, d):>9}" for x in u)
-                         + f"  {_trend_plunge(u)}")
+                         + f"  {rd.direction(u)}")
         if len(moved) > SHOWN_BLOCKS:
             lines.append(f"  ... and {len(moved) - SHOWN_BLOCKS} more (all in the summary: "
                          "--summary FILE)")
@@ -125,18 +125,6 @@ def run_text(summary: dict[str, Any], fixed: list[bool], result: str) -> list[st
         lines.append(f"the largest displacement of a free block is {rd.length(m['still_max'])}")
     lines += [f"warning: {w}" for w in summary.get("warnings", [])]
     return lines
-
-
-def _trend_plunge(u: list[float]) -> str:
-    """The direction of a displacement as trend/plunge in degrees: 172/29 (up: negative)."""
-    import math
-
-    dx, dy, dz = u
-    if dx == dy == dz == 0:
-        return "–"
-    trend = math.degrees(math.atan2(dx, dy)) % 360.0
-    plunge = math.degrees(math.atan2(-dz, math.hypot(dx, dy)))
-    return f"{trend:03.0f}/{plunge:.0f}"
 
 
 def _trials(args: argparse.Namespace, label: str, what: str, tolerance: float,
