@@ -20,11 +20,13 @@ MAX_STEP = 100_000_000
 
 
 def local_job(path: Path, status: str) -> JobRecord:
-    """A finished simulation job standing for the result file at `path` (id: its stem)."""
+    """A simulation job standing for the result file at `path` (id: its stem): successful
+    when the run completed, running while it is written (the viewer follows it), else
+    failed."""
     ident = re.sub(r"[^A-Za-z0-9_.-]", "_", path.stem) or "result"
     now = path.stat().st_mtime
-    final = "successful" if status == "completed" else "failed"
-    return JobRecord(id=ident, process="simulation", status=final, client="local",
+    state = {"completed": "successful", "running": "running"}.get(status, "failed")
+    return JobRecord(id=ident, process="simulation", status=state, client="local",
                      idempotency_key=None, request_hash=None, created=now, started=now,
                      finished=now, updated=now, progress=100.0, step=None,
                      simulated_time=None, duration=None, message=f"run {status}",
