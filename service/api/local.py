@@ -127,8 +127,10 @@ def local_app(path: Path, max_frames: int = 2000) -> Any:
 
     @app.get(base)
     def status() -> JSONResponse:
-        return JSONResponse({"id": job.id, "process": job.process, "status": job.status,
-                             "message": job.message, "result": str(path)})
+        with open_result(path) as r:  # a run still writing the file ends meanwhile
+            now = local_job(path, r.status)
+        return JSONResponse({"id": now.id, "process": now.process, "status": now.status,
+                             "message": now.message, "result": str(path)})
 
     @app.get(f"{base}/viewer", response_class=HTMLResponse)
     def viewer() -> HTMLResponse:
