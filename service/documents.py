@@ -246,15 +246,17 @@ def movement(blocks: list[dict[str, Any]], fixed: list[bool],
              threshold: float = MOVED_THRESHOLD) -> dict[str, Any]:
     """The summary's blocks split for people: the free blocks whose centroid moved more than
     `threshold` m, largest first (`moved`: name, displacement, magnitude), how many free
-    blocks moved less (`still`, the largest of them `still_max`) and how many are fixed."""
+    blocks moved less (`still`, the largest of them `still_max_name` by `still_max`) and
+    how many are fixed."""
     free = [(b, float(np.linalg.norm(b.get("displacement") or [0.0, 0.0, 0.0])))
             for k, b in enumerate(blocks) if not (k < len(fixed) and fixed[k])]
     moved = sorted(((b, u) for b, u in free if u > threshold), key=lambda x: -x[1])
-    still = [u for _, u in free if u <= threshold]
+    still = [(b, u) for b, u in free if u <= threshold]
+    top = max(still, key=lambda x: x[1], default=({}, 0.0))
     return {"threshold": threshold,
             "moved": [{"name": b.get("name", ""), "displacement": list(b["displacement"]),
                        "magnitude": u} for b, u in moved],
-            "still": len(still), "still_max": max(still, default=0.0),
+            "still": len(still), "still_max": top[1], "still_max_name": top[0].get("name", ""),
             "fixed": len(blocks) - len(free)}
 
 

@@ -94,7 +94,8 @@ def _run_sentences(summary: dict[str, Any], meta: dict[str, Any], threshold: flo
     if not moved:
         free = m["still"]
         out.append(f"<b>No free block moved more than {limit}</b>"
-                   + (f" (the largest moved {rd.length(m['still_max'])})" if free else "")
+                   + (f" (the largest, {escape(m['still_max_name'])}, moved "
+                      f"{rd.length(m['still_max'])})" if free else "")
                    + ": the blocks are stable under the scene's loads over the time "
                      "simulated.")
         return out

@@ -122,7 +122,8 @@ def run_text(summary: dict[str, Any], fixed: list[bool], result: str) -> list[st
         lines.append(f"{rd.plural(m['still'], 'other free block')} moved less "
                      f"(at most {rd.length(m['still_max'])})")
     elif m["still"]:
-        lines.append(f"the largest displacement of a free block is {rd.length(m['still_max'])}")
+        lines.append(f"the largest displacement of a free block is {rd.length(m['still_max'])} "
+                     f"({m['still_max_name']})")
     lines += [f"warning: {w}" for w in summary.get("warnings", [])]
     return lines
 
