@@ -143,7 +143,7 @@ def peers_part(pe: dict[str, Any] | None, acc: dict[str, Any] | None) -> str:
         lines.append("MuJoCo on the shared piles, re-run here (1 ms, 1 s, loop only): " + "; ".join(
             f"N = {r['N']}: {r['wall_s']:.2f} s" for r in pe["piles"]) + ".")
         lines.append("")
-    lines += ["### Reported, not re-run (from ../shared/benchmarks/README.md, verbatim)", "",
+    lines += ["### Reported, not re-run (from benchmarks/scenes/README.md, verbatim)", "",
               peers.reported_table()]
     return "\n".join(lines)
 

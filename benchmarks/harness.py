@@ -26,7 +26,6 @@ from engine.step.frame import DISSIPATIONS, ENERGY_NAMES, STORED_ENERGIES, WORKS
 from engine.step.simulation import RunResult, run
 
 ROOT = Path(__file__).resolve().parents[1]
-SHARED = ROOT.parent / "shared"
 RESULTS = Path(__file__).resolve().parent / "results"
 
 #: energy keys of a frame that the engine fills

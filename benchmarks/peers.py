@@ -66,11 +66,14 @@ def mujoco_incline(dt: float, phi_deg: float = 20.0) -> dict[str, Any]:
             "rel_error": abs(s / exact - 1.0), "note": f"mujoco {mujoco.__version__}"}
 
 
-def mujoco_pile(path: Path, dt: float = 1e-3, duration: float = 1.0) -> dict[str, Any]:
-    """A shared pile scene in MuJoCo (convex mesh per body, box walls): loop wall time."""
+def mujoco_pile(n: int, dt: float = 1e-3, duration: float = 1.0) -> dict[str, Any]:
+    """The shared pile of `n` blocks in MuJoCo (convex mesh per body, box walls): loop wall
+    time."""
     import mujoco
 
-    scene = json.loads(path.read_text())
+    from benchmarks.pile import pile_scene
+
+    scene = pile_scene(n)
     mu = math.tan(math.radians(30))
     assets, bodies = [], []
     for k, b in enumerate(scene["bodies"]):
@@ -186,11 +189,12 @@ def yade_incline(dt: float, young: float) -> dict[str, Any]:
 
 
 def reported_table() -> str:
-    """The peers' numbers from ../shared/benchmarks/README.md, verbatim (not re-run)."""
-    p = h.SHARED / "benchmarks" / "README.md"
-    if not p.exists():
-        return "(../shared/benchmarks/README.md not found)"
-    lines = p.read_text().splitlines()
+    """The peers' numbers from benchmarks/scenes/README.md (the shared scenes' README,
+    copied verbatim below its line `---`), not re-run."""
+    from benchmarks.pile import SCENES
+
+    text = (SCENES / "README.md").read_text()
+    lines = text.split("\n---\n", 1)[-1].splitlines()
     table = [ln for ln in lines if ln.startswith("|")]
     start = next((i for i, ln in enumerate(lines) if ln.startswith("Single 1 m cube")), None)
     para = " ".join(lines[start:]).strip() if start is not None else ""
@@ -210,10 +214,8 @@ def run_peers(out: Path, full: bool) -> dict[str, Any]:
             rows.append(mujoco_incline(dt))
             print(f"  MuJoCo dt={dt:g} err={rows[-1]['rel_error']:.2e}", flush=True)
         for n in (100, 400, 1000):
-            path = h.SHARED / "benchmarks" / f"pile_{n}.json"
-            if path.exists():
-                piles.append(mujoco_pile(path))
-                print(f"  MuJoCo pile_{n}: {piles[-1]['wall_s']:.2f} s", flush=True)
+            piles.append(mujoco_pile(n))
+            print(f"  MuJoCo pile_{n}: {piles[-1]['wall_s']:.2f} s", flush=True)
         notes["MuJoCo"] = "installed (pip install mujoco), re-run here"
     except ImportError:
         notes["MuJoCo"] = "not installed: run benchmarks/setup_peers.sh"

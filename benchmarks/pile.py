@@ -1,13 +1,15 @@
-"""Many-block scenes: the shared piles (../shared/benchmarks/pile_N.json) and a cut rock mass."""
+"""Many-block scenes: the piles shared with other engines (benchmarks/scenes/pile_N.json.gz,
+copied into the repository byte for byte) and a cut rock mass."""
 
 from __future__ import annotations
 
+import gzip
 import json
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
-from benchmarks import harness as h
 from engine.geometry.cutting.cut import cut_blocks
 from engine.geometry.joints import joint_set_planes
 from engine.geometry.polyhedron import dip_normal
@@ -18,15 +20,25 @@ from engine.model import AnalysisControls, Block, JointMaterial, Material, Model
 JOINT_SETS = [(45.0, 135.0), (45.0, 315.0), (75.0, 45.0)]
 
 
+#: the shared scenes, kept in the repository (their README has the peers' numbers)
+SCENES = Path(__file__).resolve().parent / "scenes"
+
+
 def pile_path(n: int) -> Path:
-    """Path of the shared pile scene with `n` blocks."""
-    return h.SHARED / "benchmarks" / f"pile_{n}.json"
+    """Path of the shared pile scene with `n` blocks (gzip-compressed JSON)."""
+    return SCENES / f"pile_{n}.json.gz"
+
+
+def pile_scene(n: int) -> dict[str, Any]:
+    """The shared pile scene with `n` blocks, as its JSON (bodies, walls, rho, seed, N)."""
+    with gzip.open(pile_path(n), "rt", encoding="utf-8") as f:
+        return json.load(f)
 
 
 def pile_model(n: int, dt: float = 1e-3, penalty: float = 1e10, duration: float = 1.0,
                **kw: object) -> Model:
     """The shared pile: fixed walls first (5 boxes), then the N convex hulls; φ = 30°."""
-    scene = json.loads(pile_path(n).read_text())
+    scene = pile_scene(n)
     blocks = []
     for k, (c, e) in enumerate(scene["walls"]):
         c, e = np.asarray(c, float), np.asarray(e, float)

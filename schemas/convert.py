@@ -18,9 +18,9 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from scipy.optimize import linprog
 
 from engine.analyses.kinematics import JointSet, SlopeFace
+from engine.geometry.boxes import box_pairs
 from engine.geometry.joints import JointPlane
 from engine.geometry.polyhedron import (
     Polyhedron,
@@ -45,7 +45,7 @@ from engine.model import (
 )
 from engine.step.stages import Stage
 from engine.tolerances import DEFAULT_TOLERANCES
-from schemas.errors import Problems, SceneError, fmt_num, fmt_point
+from schemas.errors import Problems, SceneError, fmt_num, fmt_point, format_loc
 from schemas.scene import (
     BoltPatternSpec,
     BoltSpec,
@@ -309,6 +309,8 @@ def overlap_depth(a: Polyhedron, b: Polyhedron) -> float:
 
     Exact for convex pieces (a linear program per pair of pieces).
     """
+    from scipy.optimize import linprog  # imported here: 0.3 s, only scenes with such pairs
+
     best = -np.inf
     for na, da in _halfspaces(a):
         for nb, db in _halfspaces(b):
@@ -334,14 +336,12 @@ def _check_overlaps(
 
     Two fixed blocks may overlap: they never touch each other in the analysis.
     """
-    from engine.contact.detection import aabb_pairs
-
     if len(polys) < 2 or not locs:
         return
     tol = OVERLAP_TOLERANCE * scale
     lo = np.array([q.bounds[0] for q in polys]) + tol
     hi = np.array([q.bounds[1] for q in polys]) - tol
-    for i, j in aabb_pairs(lo, np.maximum(hi, lo)).tolist():
+    for i, j in box_pairs(lo, np.maximum(hi, lo)).tolist():
         if (i not in locs and j not in locs) or (fixed[i] and fixed[j]):
             continue  # two cut blocks are disjoint by construction
         if not np.all((lo[i] < hi[j]) & (lo[j] < hi[i])):
@@ -602,6 +602,29 @@ def _water(scene: Scene, jmat_names: list[str]) -> Water | None:
 # --------------------------------------------------------------------------- build
 
 
+#: a friction angle below this (degrees, and above 0) looks like tan φ typed as degrees
+SUSPICIOUS_FRICTION_ANGLE = 1.5
+
+
+def _oddities(scene: Scene, blocks: list[Block], fixed_points: list[FixedPoint]) -> list[str]:
+    """Warnings about a valid scene that is probably not what its author meant: a friction
+    angle that reads as tan φ, nothing fixed, everything fixed."""
+    out = []
+    for name, jm in scene.joint_materials.items():
+        phi = jm.friction_angle
+        if 0 < phi < SUSPICIOUS_FRICTION_ANGLE:
+            loc = format_loc(("joint_materials", name, "friction_angle"))
+            out.append(f"{loc}: {fmt_num(phi)}° is a very low friction angle; if {fmt_num(phi)}"
+                       f" is tan φ, the angle is {np.degrees(np.arctan(phi)):.1f}° (friction "
+                       "angles are in degrees)")
+    if all(b.fixed for b in blocks):
+        out.append("every block is fixed: nothing can move")
+    elif not any(b.fixed for b in blocks) and not fixed_points:
+        out.append("nothing is fixed (no fixed block, no fixed point): every block is free "
+                   "to fall; fix the base ('fixed': true on a block, or boundary.fixed_blocks)")
+    return out
+
+
 def build_model(scene: Scene | str | Path | dict[str, Any],
                 base_dir: str | Path | None = None) -> BuildResult:
     """The engine Model of a scene (or of a path / JSON text / dict, loaded first).
@@ -739,8 +762,7 @@ def build_model(scene: Scene | str | Path | dict[str, Any],
             watch_blocks=tuple(sorted(set(watch))))
     p.raise_if_any()
 
-    if all(b.fixed for b in blocks):
-        warnings.append("every block is fixed: nothing can move")
+    warnings.extend(_oddities(scene, blocks, fixed_points))
 
     a = scene.analysis
     controls = AnalysisControls(

@@ -1144,6 +1144,25 @@ def _sweep_problems(scene: Scene, p: Problems, joint_material: Any) -> None:
                   f"{' and '.join(ANALYTIC_QUANTITIES)}, not {q}: use mode 'dda'")
 
 
+def explicit_size_problems(data: dict[str, Any]) -> list[dict[str, str]]:
+    """The format's limits on the explicit blocks of a raw scene (counts only, before any
+    field is validated): a scene over them is refused at once, with the messages
+    :func:`scene_problems` gives (which counts the domain and joint polygons too)."""
+    blocks = data.get("blocks")
+    if not isinstance(blocks, list):
+        return []
+    nv = sum(len(b["vertices"]) for b in blocks
+             if isinstance(b, dict) and isinstance(b.get("vertices"), list))
+    problems = []
+    if nv > Limits.max_vertices:
+        problems.append({"loc": "", "msg": f"the scene has {nv:,} vertices in all; the limit "
+                         f"is {Limits.max_vertices:,}"})
+    if len(blocks) > Limits.max_blocks:
+        problems.append({"loc": "blocks", "msg": f"{len(blocks):,} blocks; the limit is "
+                         f"{Limits.max_blocks:,}"})
+    return problems
+
+
 def _raw_names(items: list[Any]) -> list[dict[str, Any]]:
     return [{"name": it.name} if it.name else {} for it in items]
 
@@ -1183,6 +1202,9 @@ def load_scene(source: str | Path | dict[str, Any]) -> Scene:
     data = _parse(source)
     if not isinstance(data, dict):
         raise SceneError([{"loc": "", "msg": "a scene must be a JSON object {...}"}])
+    problems = explicit_size_problems(data)
+    if problems:  # refused at once: validating 25,000 blocks field by field takes seconds
+        raise SceneError(problems)
     try:
         scene = Scene.model_validate(data)
     except ValidationError as exc:

@@ -59,13 +59,27 @@ def json_default(obj: Any) -> Any:
     raise TypeError(f"{type(obj).__name__} is not JSON serializable")
 
 
+def _umask() -> int:
+    """The process's umask, read without changing it where Linux shows it (os.umask sets
+    it: two threads asking at once could leave the wrong one)."""
+    with contextlib.suppress(OSError, ValueError):
+        for line in Path("/proc/self/status").read_text().splitlines():
+            if line.startswith("Umask:"):
+                return int(line.split()[1], 8)
+    mask = os.umask(0o022)
+    os.umask(mask)
+    return mask
+
+
 def write_json_atomic(path: Path, doc: Any) -> None:
     """Write `doc` as JSON to `path` via a temporary file, fsync and rename (never half a
-    file for a reader)."""
+    file for a reader); the file gets the mode a plain new file gets (0644 under the usual
+    umask, like the HDF5 result), not mkstemp's 0600."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
     try:
+        os.fchmod(fd, 0o666 & ~_umask())
         with os.fdopen(fd, "w", encoding="utf-8") as f:
             json.dump(doc, f, indent=2, allow_nan=False, default=json_default)
             f.write("\n")
@@ -223,6 +237,37 @@ def run_summary(summary: dict[str, Any], build: BuildResult) -> dict[str, Any]:
     return finite(doc)
 
 
+#: a free block whose centroid moved less than this (m) counts as not moved in the summaries
+#: and reports (the penalty springs settle blocks by micrometres; sliding is centimetres)
+MOVED_THRESHOLD = 0.01
+
+
+def movement(blocks: list[dict[str, Any]], fixed: list[bool],
+             threshold: float = MOVED_THRESHOLD) -> dict[str, Any]:
+    """The summary's blocks split for people: the free blocks whose centroid moved more than
+    `threshold` m, largest first (`moved`: name, displacement, magnitude), how many free
+    blocks moved less (`still`, the largest of them `still_max_name` by `still_max`) and
+    how many are fixed."""
+    free = [(b, float(np.linalg.norm(b.get("displacement") or [0.0, 0.0, 0.0])))
+            for k, b in enumerate(blocks) if not (k < len(fixed) and fixed[k])]
+    moved = sorted(((b, u) for b, u in free if u > threshold), key=lambda x: -x[1])
+    still = [(b, u) for b, u in free if u <= threshold]
+    top = max(still, key=lambda x: x[1], default=({}, 0.0))
+    return {"threshold": threshold,
+            "moved": [{"name": b.get("name", ""), "displacement": list(b["displacement"]),
+                       "magnitude": u} for b, u in moved],
+            "still": len(still), "still_max": top[1], "still_max_name": top[0].get("name", ""),
+            "fixed": len(blocks) - len(free)}
+
+
+def fos_bracket(runs: list[dict[str, Any]], key: str = "factor") -> tuple[float, float] | None:
+    """The last bisection bracket of a factor-of-safety (or kh) search: the largest value
+    that held and the smallest that failed (None without both)."""
+    held = [r[key] for r in runs if not r.get("failed") and isinstance(r.get(key), float)]
+    fail = [r[key] for r in runs if r.get("failed") and isinstance(r.get(key), float)]
+    return (max(held), min(fail)) if held and fail else None
+
+
 def fos_controls(build: BuildResult) -> StrengthReductionControls:
     """Strength-reduction controls from the scene's `analysis.factor_of_safety` (built by
     the schema with the engine's defaults): times, tolerance, bounds, the weakened joint
@@ -287,10 +332,11 @@ def kinematics_document(result: KinematicResult) -> dict[str, Any]:
 
 
 def kinematics_text(result: KinematicResult) -> str:
-    """A short plain-text report: admissible modes, then each test's failed conditions."""
+    """A short plain-text report: the admissible sets and pairs of each mode, then every
+    test with each of its conditions, met or not, and the numbers."""
     s = result.slope
-    lines = [f"slope face {s.dip:g}/{s.dip_direction:03g}, friction angle {s.friction_angle:g}°"
-             f" (joints with their own joint material's φ use it)",
+    lines = [f"slope face {s.dip:g}/{s.dip_direction % 360:03g} (dip/dip direction), friction "
+             f"angle {s.friction_angle:g}° (joints with their own joint material's φ use it)",
              f"lateral limits: planar ±{result.limits.planar:g}°, flexural toppling "
              f"±{result.limits.flexural_toppling:g}°, direct toppling "
              f"±{result.limits.direct_toppling:g}°"]
@@ -306,10 +352,12 @@ def kinematics_text(result: KinematicResult) -> str:
         ok = [name(r) for r in rows if r.admissible]
         lines.append(f"{title}: " + (", ".join(ok) + " admissible" if ok else "none admissible"))
         for r in rows:
-            if r.admissible:
-                extra = f" (slides on {r.sliding_on})" if getattr(r, "sliding_on", None) else ""
-                lines.append(f"  {name(r)}: admissible{extra}")
-            else:
-                why = "; ".join(f"{c.test}: {c.detail}" for c in r.conditions if not c.passed)
-                lines.append(f"  {name(r)}: no ({why})")
+            extra = ""
+            if r.admissible and getattr(r, "sliding_on", None):
+                extra = (" (slides on both planes)" if r.sliding_on == "both"
+                         else f" (slides on {r.sliding_on} alone)")
+            lines.append(f"  {name(r)}: {'admissible' if r.admissible else 'not admissible'}"
+                         f"{extra}")
+            lines.extend(f"    {'met    ' if c.passed else 'not met'}  {c.test}: {c.detail}"
+                         for c in r.conditions)
     return "\n".join(lines)

@@ -134,3 +134,48 @@ class Settings(BaseSettings):
         n = str(self.worker_threads)
         return {k: n for k in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS",
                                "NUMEXPR_NUM_THREADS", "NUMBA_NUM_THREADS")} | {"MPLBACKEND": "Agg"}
+
+
+def limit_problems(scene: Any, settings: Settings) -> list[dict[str, str]]:
+    """Service limits (stricter than the format's), each naming its setting: vertices,
+    blocks (explicit ones plus the estimate of those the joints cut), duration, steps.
+
+    Only counts and arithmetic on the validated scene: nothing is cut or built yet. The
+    API checks them on every submission; `polydda validate --service-limits` on request.
+    """
+    from schemas.errors import fmt_count
+    from schemas.scene import estimate_cut_blocks
+
+    problems = []
+    nv = sum(len(b.vertices) for b in scene.blocks)
+    if scene.domain is not None and scene.domain.polyhedron is not None:
+        nv += len(scene.domain.polyhedron.vertices)
+    if nv > settings.max_vertices:
+        problems.append({"loc": "blocks", "msg": f"the scene has {nv:,} vertices in all; this "
+                         f"service accepts at most {settings.max_vertices:,} "
+                         "(POLYDDA_MAX_VERTICES)"})
+    if len(scene.blocks) > settings.max_blocks:
+        problems.append({"loc": "blocks", "msg": f"{len(scene.blocks):,} blocks; this service "
+                         f"accepts at most {settings.max_blocks:,} (POLYDDA_MAX_BLOCKS)"})
+    elif scene.joints:
+        cut = estimate_cut_blocks(scene)
+        if cut + len(scene.blocks) > settings.max_blocks:
+            extra = f" (and {len(scene.blocks):,} explicit ones)" if scene.blocks else ""
+            problems.append({"loc": "joints", "msg": f"the joints would cut the domain into "
+                             f"about {fmt_count(cut)} blocks{extra}; this service accepts at "
+                             f"most {settings.max_blocks:,} (POLYDDA_MAX_BLOCKS): increase the "
+                             "joint spacings or make the domain smaller"})
+    a = scene.analysis
+    # a staged run lasts its stages' total (analysis.duration is not used then)
+    duration = sum(st.duration for st in scene.stages) if scene.stages else a.duration
+    where = "stages" if scene.stages else "analysis.duration"
+    what = "the stages last " if scene.stages else ""
+    if duration > settings.max_duration:
+        problems.append({"loc": where, "msg": f"{what}{duration:g} s; this service "
+                         f"simulates at most {settings.max_duration:g} s "
+                         "(POLYDDA_MAX_DURATION)"})
+    if duration / a.time_step > settings.max_steps:
+        problems.append({"loc": "analysis.time_step", "msg": f"duration / time_step = "
+                         f"{duration / a.time_step:.3g} steps; this service runs at most "
+                         f"{settings.max_steps:,} (POLYDDA_MAX_STEPS)"})
+    return problems

@@ -103,3 +103,23 @@ def test_stability_map_v2_verdicts() -> None:
     assert verdict_of(outcome("completed"), within=True, created_ok=False) == WRONG
     assert verdict_of(outcome("failed", "penetration"), within=False, created_ok=True) == FAILED
     assert verdict_of(outcome("cancelled"), within=False, created_ok=True) == STOPPED
+
+
+def test_the_shared_piles_live_in_the_repository() -> None:
+    """The piles the step digests, the stages and the benchmarks run are the scenes the peers'
+    numbers refer to: byte for byte the shared JSON (SHA-256 listed in their README), read
+    from benchmarks/scenes/ (a fresh clone has no ../shared)."""
+    import gzip
+    import hashlib
+    import re
+
+    from benchmarks.pile import SCENES, pile_path, pile_scene
+
+    readme = (SCENES / "README.md").read_text()
+    for n in (100, 400, 1000):
+        path = pile_path(n)
+        assert path.parent == SCENES and path.is_file()
+        digest = hashlib.sha256(gzip.decompress(path.read_bytes())).hexdigest()
+        assert re.search(rf"- pile_{n}: `{digest}`", readme), n
+        scene = pile_scene(n)
+        assert (scene["N"], len(scene["bodies"]), len(scene["walls"])) == (n, n, 5)

@@ -36,9 +36,12 @@ def test_blocks_text(capsys: pytest.CaptureFixture[str]) -> None:
     assert code == 0 and err == ""
     lines = out.splitlines()
     assert lines[0] == "2 blocks"
-    assert lines[2].split() == ["B1", "2770.23", "concave", "yes"]
-    assert lines[3].split() == ["B2", "29.7708", "convex", "no"]
-    assert lines[-1] == "total volume: 2800 m3"
+    assert lines[1].split() == ["name", "volume", "(m³)", "shape", "fixed", "centroid", "x,",
+                                "y,", "z", "(m)"]
+    assert lines[2].split() == ["B1", "2770.23", "concave", "yes", "-0.006,", "3.056,", "4.957"]
+    # the wedge's centroid is the mean of its 4 vertices (a tetrahedron)
+    assert lines[3].split() == ["B2", "29.7708", "convex", "no", "0.601,", "-2.250,", "9.032"]
+    assert lines[-1] == "total volume: 2800 m³"
 
 
 def test_blocks_json(capsys: pytest.CaptureFixture[str]) -> None:
@@ -130,7 +133,8 @@ def test_contacts_of_the_wedge(capsys: pytest.CaptureFixture[str]) -> None:
 def test_contacts_text_and_search_distance(capsys: pytest.CaptureFixture[str]) -> None:
     stack = str(EXAMPLES / "stack.json")
     code, out, _ = run(capsys, "contacts", stack, "--search-distance", "0.01")
-    assert code == 0 and "search distance 0.01 m" in out.splitlines()[0]
+    assert code == 0 and "search distance 10.0 mm" in out.splitlines()[0]
+    assert "gap=0 µm" in out.splitlines()[1]
     code, out, _ = run(capsys, "contacts", stack, "--json")
     pairs = {frozenset((c["block_i"], c["block_j"])) for c in json.loads(out)["contacts"]}
     assert pairs == {frozenset(p) for p in [("top", "middle"), ("middle", "bottom"),
@@ -251,14 +255,29 @@ def test_run_of_a_bad_scene_exits_2(capsys: pytest.CaptureFixture[str], tmp_path
 
 def test_plot_of_a_missing_or_foreign_file_says_so_in_one_line(
         capsys: pytest.CaptureFixture[str], tmp_path: Path) -> None:
-    """`polydda plot` of a file that is not there, or is not HDF5: one line, exit 1."""
+    """`polydda plot` of a file that is not there (exit 1), or is a scene, or is not a result
+    (exit 2, like any other bad input): one line that says what it is, not h5py's message."""
     code, out, err = run(capsys, "plot", str(tmp_path / "nope.h5"), "--out", str(tmp_path))
     assert code == 1 and err.strip() == f"polydda plot: no such result file: {tmp_path}/nope.h5"
     foreign = tmp_path / "scene.h5"
     foreign.write_text("{}")
     code, out, err = run(capsys, "plot", str(foreign), "--out", str(tmp_path))
-    assert code == 1 and len(err.strip().splitlines()) == 1
-    assert err.count("file signature not found") == 1
+    assert code == 2 and len(err.strip().splitlines()) == 1
+    assert f"{foreign} is a scene, not a result: run it first" in err
+    code, out, err = run(capsys, "plot", WEDGE)
+    assert code == 2 and f"polydda run {WEDGE} --out RESULT.h5" in err
+    foreign.write_bytes(b"PK\x03\x04 a zip")
+    code, out, err = run(capsys, "plot", str(foreign))
+    assert code == 2 and err == f"polydda plot: {foreign} is not a PolyDDA result (the HDF5 " \
+                                "file that polydda run --out writes)\n"
+    import h5py
+
+    with h5py.File(foreign, "w") as f:
+        f["x"] = [1.0]
+    code, out, err = run(capsys, "plot", str(foreign))
+    assert code == 2 and err == f"polydda plot: {foreign} is an HDF5 file but not a PolyDDA " \
+                                "result\n"
+    assert "signature" not in err and "Traceback" not in err
 
 
 def test_plot_chooses_blocks_and_snapshot_times(capsys: pytest.CaptureFixture[str],

@@ -22,6 +22,7 @@ from engine.contact.constraints import (
     assign_joint_materials,
 )
 from engine.contact.detection import aabb_pairs, decode_feature, detect_contacts, feature_code
+from engine.geometry.boxes import box_pairs
 from engine.geometry.cutting.cut import convex_decomposition
 from engine.geometry.polyhedron import (
     ConvexPiece,
@@ -191,20 +192,39 @@ def test_feature_code_round_trip():
 @settings(max_examples=30, deadline=None, database=None)
 @given(st.integers(0, 2**31 - 1), st.integers(2, 120))
 def test_aabb_pairs_match_brute_force(seed, n):
+    """The compiled sweep (each step) and the numpy one (a scene's overlap check) find
+    exactly the brute-force pairs, in the same order."""
     rng = np.random.default_rng(seed)
     lo = rng.uniform(0, 10, (n, 3))
     hi = lo + rng.uniform(0, 1.5, (n, 3)) * rng.choice([0.2, 1.0, 6.0], (n, 1))
-    got = aabb_pairs(lo, hi)
     ov = np.all(lo[:, None] <= hi[None], axis=2) & np.all(lo[None] <= hi[:, None], axis=2)
     a, b = np.nonzero(np.triu(ov, 1))
-    assert got.tolist() == sorted(map(list, zip(a.tolist(), b.tolist(), strict=True)))
+    want = sorted(map(list, zip(a.tolist(), b.tolist(), strict=True)))
+    assert aabb_pairs(lo, hi).tolist() == want
+    assert box_pairs(lo, hi).tolist() == want
 
 
-def test_aabb_pairs_touching_and_degenerate():
+@pytest.mark.parametrize("pairs", [aabb_pairs, box_pairs])
+def test_aabb_pairs_touching_and_degenerate(pairs):
     lo = np.array([[0, 0, 0], [1, 0, 0], [2.5, 0, 0], [0, 0, 0]], float)
     hi = np.array([[1, 1, 1], [2, 1, 1], [3, 1, 1], [0, 0, 0]], float)
-    assert aabb_pairs(lo, hi).tolist() == [[0, 1], [0, 3]]
-    assert aabb_pairs(lo[:1], hi[:1]).shape == (0, 2)
+    assert pairs(lo, hi).tolist() == [[0, 1], [0, 3]]
+    assert pairs(lo[:1], hi[:1]).shape == (0, 2)
+
+
+def test_box_pairs_in_chunks_and_one_box_spanning_all(monkeypatch):
+    """A base spanning every block (a candidate of all) and a sweep cut into chunks of a
+    few candidates find the same pairs as one pass."""
+    import engine.geometry.boxes as boxes
+
+    rng = np.random.default_rng(7)
+    lo = np.vstack([[-1, -1, -1], rng.uniform(0, 10, (200, 3))])
+    hi = np.vstack([[11, 11, 11], lo[1:] + rng.uniform(0, 1.0, (200, 3))])
+    whole = box_pairs(lo, hi)
+    assert whole[:200].tolist() == [[0, k] for k in range(1, 201)]
+    assert len(whole) > 200  # and pairs among the small boxes
+    monkeypatch.setattr(boxes, "_CHUNK", 7)
+    assert box_pairs(lo, hi).tolist() == whole.tolist() == aabb_pairs(lo, hi).tolist()
 
 
 def test_far_apart_blocks_have_no_contacts():

@@ -246,6 +246,33 @@ def test_cli_kinematics_json_and_plot(tmp_path: Path, capsys: pytest.CaptureFixt
     assert "J1/J2: trend 172.59°, plunge 28.75°" in out and "wedge sliding: none" in out
 
 
+def test_the_text_says_what_held_and_what_did_not(capsys: pytest.CaptureFixture[str]) -> None:
+    """Every condition of every test is printed as met or not met with a statement that is
+    true either way (the wedge's 28.75° plunge is *below* φ 40°); planes and lines that
+    point into the slope say so instead of showing a negative apparent dip."""
+    assert main(["kinematics", str(EXAMPLES / "jointed_slope.json")]) == 0
+    out = capsys.readouterr().out
+    assert "  bedding: not admissible\n" in out
+    assert ("    not met  steeper than friction: dip 35° < φ 40°\n"
+            "  toppling: not admissible") in out.split("planar sliding:")[1]
+    assert "    met      daylights: dip 35° < the face's apparent dip 65.00° along 180°" in out
+    assert ("    not met  daylights: the plane dips into the slope, away from the face"
+            in out)  # toppling, 80/000 in a face dipping to 180
+    assert "the plane dips along the face's strike, not out of the face" in out  # 85/090
+    assert "  wedge_east/wedge_west: admissible (slides on both planes)" in out
+    assert "    met      steeper than friction: plunge 48.07° > φ 40°" in out
+    assert "    met      interlayer slip: dip 80° > 90° − slope dip 65° + φ 40° = 65°" in out
+    assert "apparent dip -" not in out and "vs" not in out
+    assert main(["kinematics", str(WEDGE)]) == 0
+    out = capsys.readouterr().out
+    assert ("  J1/J2: not admissible\n"
+            "    met      plunges out of the face: intersection trend 172.59° is 7.41° from "
+            "the face's dip direction 180° (out of the face)\n"
+            "    met      daylights: plunge 28.75° < the face's apparent dip 90.00° along "
+            "172.59°\n"
+            "    not met  steeper than friction: plunge 28.75° < φ 40°\n") in out
+
+
 def test_cli_kinematics_without_slope_face(capsys: pytest.CaptureFixture[str]) -> None:
     assert main(["kinematics", str(EXAMPLES / "incline.json")]) == 2
     assert "slope_face: kinematic screening needs the slope face" in capsys.readouterr().err

@@ -127,3 +127,42 @@ def test_no_pyplot_state(result_file: Path, tmp_path: Path) -> None:
             "assert 'matplotlib.pyplot' not in sys.modules")
     subprocess.run([sys.executable, "-W", "error", "-c", code], check=True,
                    cwd=Path(__file__).parent.parent)
+
+
+def test_nearly_constant_curves_get_readable_axes() -> None:
+    """A bolt's constant 40 kN with 1e-11 kN of round-off drew as '1e-11+4.000001478e1' and a
+    residual of 1e-20 J on an axis scaled at 1e-20: now no offset, and limits at least
+    ± max(floor, 0.1 % of the level) about the curve (40 ± 0.04 kN; ± the floor at 0)."""
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+
+    from engine.results.plots import FORCE_FLOOR_KN, LENGTH_FLOOR, _readable_y
+
+    fig = Figure()
+    force, noise, moving = fig.subplots(3)
+    t = np.linspace(0.0, 1.0, 50)
+    force.plot(t, 40.000001478 + 1e-11 * np.sin(7 * t))
+    noise.plot(t, 1e-20 * np.sin(7 * t))
+    moving.plot(t, 3e-6 * t)  # a real 3 µm displacement: its own limits stay
+    _readable_y(force, FORCE_FLOOR_KN)
+    _readable_y(noise, FORCE_FLOOR_KN)
+    _readable_y(moving, LENGTH_FLOOR)
+    FigureCanvasAgg(fig).draw()
+    for ax in (force, noise):
+        assert ax.yaxis.get_major_formatter().get_offset() == ""
+    assert moving.yaxis.get_major_formatter().get_offset() == "1e−6"  # a scale, no offset
+    level = 40.000001478  # ± 0.1 % of it
+    assert force.get_ylim() == pytest.approx((0.999 * level, 1.001 * level), rel=1e-12)
+    assert noise.get_ylim() == pytest.approx((-1e-3, 1e-3), abs=1e-12)
+    lo, hi = moving.get_ylim()
+    assert hi - lo < 1e-5  # autoscaled to the data, not widened
+
+
+def test_plots_raise_no_warning(result_file: Path, tmp_path: Path) -> None:
+    """`polydda plot` makes every figure without a RuntimeWarning (pytest turns warnings into
+    errors: filterwarnings = error)."""
+    import warnings
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        assert len(plot_all(result_file, tmp_path / "w")) == 5

@@ -236,7 +236,8 @@ def test_disc_extent_cuts_only_where_it_reaches() -> None:
     scene["joints"][0]["extent"]["disc"]["radius"] = 0.3
     result = build_model(scene)
     assert len(result.model.blocks) == 1
-    assert len(result.warnings) == 1 and "cuts nothing" in result.warnings[0]
+    assert len(result.warnings) == 2 and "cuts nothing" in result.warnings[0]
+    assert result.warnings[1].startswith("nothing is fixed")  # and the cube would fall
 
 
 def test_concave_explicit_block_gets_convex_pieces() -> None:

@@ -222,7 +222,7 @@ def test_report_page_loads_with_its_plots(served: Any) -> None:
             assert page.evaluate(f"document.querySelector('{fig}').naturalWidth") > 500, fig
         text = page.inner_text("body")
         assert "J1" in text and "Versions and provenance" in text and "B2" in text
-        assert "Kinematic screening" in text and "plunge 28.75° vs φ 40°" in text
+        assert "Kinematic screening" in text and "plunge 28.75° < φ 40°" in text
         shot(page, "report.png", full_page=True)
         pdf = page.pdf(format="A4")  # what "Print / save as PDF" makes
         assert pdf.startswith(b"%PDF") and len(pdf) > 50_000

@@ -17,12 +17,11 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
-from scipy import optimize, stats
 
 from engine.analyses.kinematics import normal, trend_plunge
 
 __all__ = ["Distribution", "fisher_angles", "fisher_angles_of", "fisher_fit",
-           "fisher_orientations", "plane_positions", "scatter_about"]
+           "fisher_orientations", "fisher_stats", "plane_positions", "scatter_about"]
 
 
 def fisher_angles(kappa: float, n: int, rng: np.random.Generator) -> np.ndarray:
@@ -80,6 +79,12 @@ def fisher_fit(dips: Any, dip_directions: Any) -> dict[str, float]:
                                                  strict=True)])
     first = v.sum(axis=0)
     v[v @ first < 0] *= -1.0
+    return fisher_stats(v)
+
+
+def fisher_stats(v: np.ndarray) -> dict[str, float]:
+    """Mean plane (dip, dip direction in degrees), mean resultant length R̄ and maximum-
+    likelihood κ of unit normals `v (n, 3)` already turned to one side."""
     resultant = v.sum(axis=0)
     r_bar = float(np.linalg.norm(resultant) / len(v))
     if r_bar >= 1.0 - 1e-12:
@@ -89,6 +94,9 @@ def fisher_fit(dips: Any, dip_directions: Any) -> dict[str, float]:
     else:  # A(κ) = coth κ − 1/κ is increasing from 0 to 1
         def a(k: float) -> float:
             return 1.0 / math.tanh(k) - 1.0 / k - r_bar
+
+        from scipy import optimize  # imported here: scipy.optimize takes 0.3 s to import
+
         kappa = float(optimize.brentq(a, 1e-9, 1e7, xtol=1e-12, rtol=1e-12))
     trend, plunge = trend_plunge(resultant)  # the mean normal as a line: its pole
     return {"dip": 90.0 - plunge, "dip_direction": (trend + 180.0) % 360.0,
@@ -106,6 +114,8 @@ class Distribution:
 
     def frozen(self) -> Any:
         """The scipy.stats distribution with this mean (and sd)."""
+        from scipy import stats  # imported here: scipy.stats takes 0.3 s to import
+
         if self.kind == "fixed":
             return stats.rv_discrete(values=([self.mean], [1.0]))
         if self.kind == "exponential":

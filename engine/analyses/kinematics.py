@@ -80,11 +80,38 @@ class LateralLimits:
 
 @dataclass(frozen=True)
 class Condition:
-    """One test of a failure mode: its name, whether it passed, and the numbers."""
+    """One test of a failure mode: its name (the condition a mode needs), whether it holds,
+    and the numbers as a statement that is true either way (`dip 25° < φ 30°`)."""
 
     test: str
     passed: bool
     detail: str
+
+
+def _vs(a: float, b: float) -> str:
+    """The relation of `a` to `b` as a sign (equal within EPS_DEG)."""
+    return "<" if a < b - EPS_DEG else ">" if a > b + EPS_DEG else "="
+
+
+def _az(azimuth: float) -> str:
+    """An azimuth as geologists write it: 090°, or 172.59° when it is not whole."""
+    a = azimuth % 360.0
+    return f"{a:03.0f}°" if abs(a - round(a)) < 1e-9 else f"{a:06.2f}°"
+
+
+def _off(what: str, azimuth: float, reference: str, ref_azimuth: float, off: float,
+         limit: float, ok: bool) -> str:
+    """`dip direction 215° is 35.00° from the face's 180° (outside the limit ±20°)`."""
+    return (f"{what} {_az(azimuth)} is {abs(off):.2f}° from {reference} {_az(ref_azimuth)} "
+            f"({'within' if ok else 'outside'} the limit ±{limit:g}°)")
+
+
+def _away(what: str, off: float) -> str:
+    """Why a plane or line pointing `off` degrees from the face's dip direction (|off| ≥ 90)
+    cannot daylight."""
+    if abs(abs(off) - 90.0) <= EPS_DEG:
+        return f"{what} along the face's strike, not out of the face"
+    return f"{what} into the slope, away from the face"
 
 
 # --------------------------------------------------------------------------- geometry
@@ -225,14 +252,17 @@ def _planar(s: JointSet, slope: SlopeFace, limit: float) -> PlanarSliding:
     phi = _phi(s, slope)
     off = angle_between(s.dip_direction, slope.dip_direction)
     face = apparent_dip(slope.dip, slope.dip_direction, s.dip_direction)
+    within = abs(off) <= limit + EPS_DEG
+    daylight = (f"dip {s.dip:g}° {_vs(s.dip, face)} the face's apparent dip {face:.2f}° "
+                f"along {_az(s.dip_direction)}" if abs(off) < 90 else
+                _away("the plane dips", off))
     conds = [
-        Condition("lateral limit", abs(off) <= limit + EPS_DEG,
-                  f"dip direction {s.dip_direction:g}° is {abs(off):.2f}° from the face's "
-                  f"{slope.dip_direction:g}° (limit ±{limit:g}°)"),
-        Condition("daylights", abs(off) < 90 and s.dip < face - EPS_DEG,
-                  f"dip {s.dip:g}° vs apparent dip of the face {face:.2f}° along it"),
+        Condition("lateral limit", within, _off("dip direction", s.dip_direction,
+                                                "the face's", slope.dip_direction, off,
+                                                limit, within)),
+        Condition("daylights", abs(off) < 90 and s.dip < face - EPS_DEG, daylight),
         Condition("steeper than friction", s.dip > phi + EPS_DEG,
-                  f"dip {s.dip:g}° vs φ {phi:g}°"),
+                  f"dip {s.dip:g}° {_vs(s.dip, phi)} φ {phi:g}°"),
     ]
     return PlanarSliding(s.name, all(c.passed for c in conds), conds)
 
@@ -252,14 +282,19 @@ def _wedge(a: JointSet, b: JointSet, slope: SlopeFace) -> WedgeSliding:
     phi = min(_phi(a, slope), _phi(b, slope))
     off = angle_between(trend, slope.dip_direction)
     face = apparent_dip(slope.dip, slope.dip_direction, trend)
+    out = abs(off) < 90 - EPS_DEG
+    daylight = (f"plunge {plunge:.2f}° {_vs(plunge, face)} the face's apparent dip "
+                f"{face:.2f}° along {_az(trend)}" if abs(off) < 90 else
+                _away("the intersection plunges", off))
+    where = ("the intersection is horizontal" if plunge <= EPS_DEG else
+             f"intersection trend {_az(trend)} is {abs(off):.2f}° from the face's dip "
+             f"direction {_az(slope.dip_direction)} "
+             + ("(out of the face)" if out else "(not out of the face)"))
     conds = [
-        Condition("plunges out of the face", abs(off) < 90 - EPS_DEG and plunge > EPS_DEG,
-                  f"intersection trend {trend:.2f}° is {abs(off):.2f}° from the face's dip "
-                  f"direction {slope.dip_direction:g}°"),
-        Condition("daylights", abs(off) < 90 and plunge < face - EPS_DEG,
-                  f"plunge {plunge:.2f}° vs apparent dip of the face {face:.2f}° along it"),
+        Condition("plunges out of the face", out and plunge > EPS_DEG, where),
+        Condition("daylights", abs(off) < 90 and plunge < face - EPS_DEG, daylight),
         Condition("steeper than friction", plunge > phi + EPS_DEG,
-                  f"plunge {plunge:.2f}° vs φ {phi:g}°"),
+                  f"plunge {plunge:.2f}° {_vs(plunge, phi)} φ {phi:g}°"),
     ]
     ok = all(c.passed for c in conds)
     on = None
@@ -275,13 +310,14 @@ def _flexural(s: JointSet, slope: SlopeFace, limit: float) -> FlexuralToppling:
     pole_trend, _ = pole(s.dip, s.dip_direction)
     off = angle_between(pole_trend, slope.dip_direction)
     need = 90.0 - slope.dip + phi
+    within = abs(off) <= limit + EPS_DEG
     conds = [
-        Condition("dips into the slope within the lateral limit", abs(off) <= limit + EPS_DEG,
-                  f"pole trend {pole_trend:g}° is {abs(off):.2f}° from the face's dip "
-                  f"direction {slope.dip_direction:g}° (limit ±{limit:g}°)"),
+        Condition("dips into the slope within the lateral limit", within,
+                  _off("pole trend", pole_trend, "the face's dip direction",
+                       slope.dip_direction, off, limit, within)),
         Condition("interlayer slip", s.dip >= need - EPS_DEG,
-                  f"dip {s.dip:g}° vs 90° − slope dip {slope.dip:g}° + φ {phi:g}° = "
-                  f"{need:g}°"),
+                  f"dip {s.dip:g}° {_vs(s.dip, need)} 90° − slope dip {slope.dip:g}° + "
+                  f"φ {phi:g}° = {need:g}°"),
     ]
     return FlexuralToppling(s.name, all(c.passed for c in conds), conds)
 
@@ -300,13 +336,14 @@ def _direct(a: JointSet, b: JointSet, others: list[JointSet], slope: SlopeFace,
              if abs(angle_between(s.dip_direction, slope.dip_direction)) <= limit + EPS_DEG
              and s.dip <= slope.dip + EPS_DEG]
     base_names = [s.name for s in bases]
+    within = abs(off) <= limit + EPS_DEG
     conds = [
-        Condition("plunges into the slope within the lateral limit",
-                  abs(off) <= limit + EPS_DEG,
-                  f"intersection trend {trend:.2f}° is {abs(off):.2f}° from {into:g}° "
-                  f"(limit ±{limit:g}°)"),
+        Condition("plunges into the slope within the lateral limit", within,
+                  _off("intersection trend", trend, "the direction into the slope", into,
+                       off, limit, within)),
         Condition("steep enough", plunge >= steep - EPS_DEG,
-                  f"plunge {plunge:.2f}° vs 90° − slope dip = {steep:g}°"),
+                  f"plunge {plunge:.2f}° {_vs(plunge, steep)} 90° − slope dip {slope.dip:g}° "
+                  f"= {steep:g}°"),
         Condition("base plane", bool(bases),
                   ("base planes " + ", ".join(base_names)) if bases else
                   "no other set dips out of the face within the lateral limit at less than "

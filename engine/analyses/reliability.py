@@ -17,7 +17,6 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
-from scipy import stats
 
 from engine.analyses.kinematics import normal
 
@@ -32,6 +31,8 @@ def truncated_normal(mean: float, sd: float, n: int, seed: int | Sequence[int],
     rng = np.random.default_rng(seed)
     a, b = (lo - mean) / sd, (hi - mean) / sd
     u = rng.random(n)  # one uniform per realisation, then the inverse CDF
+    from scipy import stats  # imported here: scipy.stats takes 0.3 s to import
+
     x = stats.truncnorm.ppf(u, a, b, loc=mean, scale=sd)
     return np.minimum(x, np.nextafter(hi, lo))
 
@@ -117,6 +118,8 @@ def aggregate(fs: Any, parameters: dict[str, Any] | None = None,
     for name, values in (parameters or {}).items():
         x = np.asarray(values, float)[ok]
         if n > 2 and np.ptp(x) > 0 and np.ptp(f_ok) > 0:
+            from scipy import stats
+
             rho = stats.spearmanr(x, f_ok).statistic
             doc["sensitivity"][name] = float(rho)
     return doc

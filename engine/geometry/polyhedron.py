@@ -14,7 +14,6 @@ from functools import cached_property
 
 import numpy as np
 
-from engine.geometry._transform_kernels import rotation_matrices
 from engine.tolerances import DEFAULT_TOLERANCES, Tolerances
 
 FACE_TAG_BOUNDARY = -1  #: face on the domain boundary or of an explicit block
@@ -471,6 +470,8 @@ class Polyhedron(_Faces):
 def rotation_matrix(rotvec: np.ndarray) -> np.ndarray:
     """Exact rotation matrix `(3, 3)` of a rotation vector `(3,)` (rad), or matrices
     `(n, 3, 3)` of vectors `(n, 3)`: Rodrigues' formula."""
+    from engine.geometry._transform_kernels import rotation_matrices  # numba: when used
+
     rv = np.asarray(rotvec, dtype=np.float64)
     out = rotation_matrices(np.ascontiguousarray(rv.reshape(-1, 3)))
     return out[0] if rv.ndim == 1 else out

@@ -32,6 +32,8 @@ ENERGY_LABELS = {
     "removed_energy": "removed with excavated blocks",
 }
 MAX_HISTORY_BLOCKS = 8
+#: the half-span a nearly constant curve is drawn in at least: 1 nm (and nm/s), 1 nJ, 1 N
+LENGTH_FLOOR, ENERGY_FLOOR, FORCE_FLOOR_KN = 1e-9, 1e-9, 1e-3
 #: snapshots name the free blocks when there are at most this many
 MAX_LABELS = 30
 #: (elevation, azimuth) degrees of the snapshots' camera: the browser viewer's first view
@@ -46,6 +48,22 @@ def _save(fig: Figure, path: PathLike, dpi: int = 120) -> Path:
     FigureCanvasAgg(fig)
     fig.savefig(out, dpi=dpi, format="png")
     return out
+
+
+def _readable_y(ax: Any, floor: float, relative: float = 1e-3) -> None:
+    """Keep a y axis readable when its curves hardly vary: limits at least ± max(`floor`,
+    `relative` × |level|) about their middle (round-off of 1e-15 J draws as a flat line at
+    0, a constant 40 kN as 40.00), and no offset text such as '1e-11+4.000001478e1'."""
+    ax.ticklabel_format(axis="y", useOffset=False)
+    ys = [np.asarray(line.get_ydata(), float) for line in ax.get_lines()]
+    v = np.concatenate([y[np.isfinite(y)] for y in ys]) if ys else np.zeros(0)
+    if not len(v):
+        return
+    lo, hi = float(v.min()), float(v.max())
+    mid = 0.5 * (lo + hi)
+    half = max(floor, relative * abs(mid))
+    if hi - lo < 2.0 * half:
+        ax.set_ylim(mid - half, mid + half)
 
 
 def _title(result: Result, text: str) -> str:
@@ -108,6 +126,7 @@ def plot_histories(result: Result | PathLike, path: PathLike,
     mark_stages(result, ax_u, ax_v)
     for ax in (ax_u, ax_v):
         ax.grid(True, alpha=0.3)
+        _readable_y(ax, LENGTH_FLOOR)
     if idx:
         ax_u.legend(fontsize="small", loc="best")
     else:
@@ -140,6 +159,10 @@ def plot_energy(result: Result | PathLike, path: PathLike) -> Path:
             ax.plot(t, values, label=label)
     res = energy_residual(e) if e else np.zeros(len(t))
     ax_r.plot(t, res, color="black", label="residual")
+    _readable_y(ax, ENERGY_FLOOR)
+    scale = max((float(np.nanmax(np.abs(v))) for v in e.values()
+                 if len(v) and not np.all(np.isnan(v))), default=0.0)
+    _readable_y(ax_r, max(ENERGY_FLOOR, 1e-3 * scale))  # round-off is 0 on this scale
     ax_r.axhline(0.0, color="grey", lw=0.5)
     ax.set_ylabel("energy / work (J)")
     ax_r.set_ylabel("balance residual (J)")
@@ -194,6 +217,7 @@ def plot_displacements(result: Result | PathLike, path: PathLike,
         axes[key].set_ylabel(f"{name} (m)")
         axes[key].grid(True, alpha=0.3)
         axes[key].axhline(0.0, color="grey", lw=0.5)
+        _readable_y(axes[key], LENGTH_FLOOR)
     axes["z"].set_xlabel("time (s)")
     mark_stages(result, axes["x"], axes["y"], axes["z"])
     axes["x"].set_title(_title(result, "Centroid displacement components"))
@@ -235,6 +259,7 @@ def plot_bolts(result: Result | PathLike, path: PathLike) -> Path:
     mark_stages(result, ax_n, ax_s)
     for ax in (ax_n, ax_s):
         ax.grid(True, alpha=0.3)
+        _readable_y(ax, FORCE_FLOOR_KN)
     if len(b["names"]) <= 12:
         ax_n.legend(fontsize="small", loc="best")
     return _save(fig, path)
@@ -259,6 +284,7 @@ def plot_water(result: Result | PathLike, path: PathLike) -> Path:
     ax.set_title(_title(result, "Resultant water force per block"))
     mark_stages(result, ax)
     ax.grid(True, alpha=0.3)
+    _readable_y(ax, FORCE_FLOOR_KN)
     if ax.lines:
         ax.legend(fontsize="small", loc="best")
     return _save(fig, path)

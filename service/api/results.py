@@ -15,8 +15,8 @@ from typing import Any
 from service.api.frames import Frames, RangeError
 from service.api.frames import frames as make_frames
 from service.api.models import FILE_TYPES
-from service.api.pages import report_html
 from service.api.problems import Problem
+from service.api.report import report_html
 from service.documents import NotRecorded, result_contacts_document
 from service.jobs.backend import Backend
 from service.jobs.processes import PROCESSES, RESULT_FILE

@@ -1,2 +1,3 @@
-"""The command line: `polydda` (:mod:`.main`, one `cmd_*` function per subcommand) and the
-small REST client it submits scenes with (:mod:`.client`)."""
+"""The command line: `polydda` (:mod:`.main`: the parser and entry point; the commands in
+:mod:`.scenes`, :mod:`.runs`, :mod:`.analyses`, :mod:`.results`, :mod:`.remote`, sharing
+:mod:`.common`) and the small REST client it submits scenes with (:mod:`.client`)."""

@@ -4,7 +4,6 @@ theory, the table Unwedge gives) and, given the run's result, what the DDA did t
 from __future__ import annotations
 
 import argparse
-import json
 import math
 import sys
 from typing import Any
@@ -15,12 +14,11 @@ from engine.analyses.keyblocks import key_blocks
 from engine.geometry.excavations import EXCAVATION_TAG_BASE
 from engine.geometry.polyhedron import FACE_TAG_BOUNDARY
 from engine.model import JointMaterial
+from service.cli.common import EXIT_IO, EXIT_OK, EXIT_SCENE, load_scene, print_json
 
 #: the DDA says a block moved when its final displacement exceeds this fraction of its
 #: size (the cube root of its volume)
 MOVED_RATIO = 0.01
-#: exit codes (as service.cli.main's)
-EXIT_SCENE, EXIT_IO = 2, 1
 
 
 def _stage_of(build: Any, excavation: str) -> int:
@@ -110,10 +108,10 @@ def keyblock_text(doc: dict[str, Any]) -> str:
     return "\n".join(lines)
 
 
-def cmd_keyblocks(args: argparse.Namespace, load: Any) -> int:
+def cmd_keyblocks(args: argparse.Namespace) -> int:
     """Print the key-block table of the scene's excavations (with --result, the DDA's
     verdict on each block)."""
-    build = load(args.scene, quiet=args.json)
+    build = load_scene(args.scene, quiet=args.json)
     result = None
     if args.result:
         from engine.results.reader import open_result
@@ -128,18 +126,7 @@ def cmd_keyblocks(args: argparse.Namespace, load: Any) -> int:
             return EXIT_SCENE
     doc = keyblock_document(build, result)
     if args.json:
-        print(json.dumps(doc, indent=2))
+        print_json(doc)
     else:
         print(keyblock_text(doc) or "the scene has no excavations")
-    return 0
-
-
-def add_parser(sub: Any, load: Any) -> None:
-    """The `keyblocks` subcommand."""
-    p = sub.add_parser("keyblocks", help="key blocks of the scene's excavations (block "
-                       "theory) and what the DDA run did to them")
-    p.add_argument("scene", help="scene JSON file with excavations")
-    p.add_argument("--result", metavar="RESULT.h5", help="the scene's run: each block's "
-                   "final displacement and the DDA's verdict")
-    p.add_argument("--json", action="store_true", help="print one JSON document")
-    p.set_defaults(func=lambda args: cmd_keyblocks(args, load))
+    return EXIT_OK

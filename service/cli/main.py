@@ -1,7 +1,11 @@
-"""`polydda` command line: inspect scenes (blocks, contacts), print the JSON Schema.
+"""`polydda` command line: the parser and the entry point.
 
-Each subcommand is one `cmd_*` function taking the parsed arguments and returning an exit
-code; add a command by writing one and registering it in :func:`build_parser`.
+Each subcommand is one `cmd_*` function in a module of this package (:mod:`.scenes`:
+blocks, contacts, validate, schema; :mod:`.runs`: run, fos, seismic; :mod:`.analyses`:
+kinematics, sweep; :mod:`.keyblocks`: keyblocks; :mod:`.orientations`: stereonet;
+:mod:`.results`: plot, view, report; :mod:`.remote`: serve, worker, submit), taking the
+parsed arguments and returning an exit code; add a command by writing one and registering it
+in :func:`build_parser`. A command's module is imported only when that command runs.
 Exit codes: 0 success, 3 a run that did not complete (its status and reason on stderr),
 2 bad scene or bad arguments (problems on stderr, one per line),
 1 an output file could not be written.
@@ -10,587 +14,46 @@ Exit codes: 0 success, 3 a run that did not complete (its status and reason on s
 from __future__ import annotations
 
 import argparse
-import json
+import importlib
 import os
 import sys
-import time
-from collections.abc import Callable, Sequence
-from pathlib import Path
-from typing import Any
+from collections.abc import Callable, Iterator, Sequence
 
-import numpy as np
-
-from engine.analyses.strength_reduction import (
-    TrialRun,
-    critical_seismic_coefficient,
-    factor_of_safety,
-)
-from engine.results.writer import ResultWriter
-from engine.step.simulation import STATUS_COMPLETED, Progress
-from schemas.convert import BuildResult, build_model
-from schemas.errors import SceneError
-from schemas.scene import SCHEMA_VERSION, scene_json_schema
-from service.documents import (
-    SEARCH_DISTANCE_RATIO,
-    blocks_document,
-    fos_controls,
-    fos_document,
-    kinematic_result,
-    kinematics_document,
-    kinematics_text,
-    run_summary,
-    scene_contacts_document,
-    seismic_controls,
-    seismic_document,
-    surface,
-    write_json_atomic,
-)
-from service.jobs.processes import PROCESS_IDS
+from service.cli.common import EXIT_OK, EXIT_SCENE, scene_failed
 from service.jobs.worker import add_arguments as worker_options
 
-__all__ = ["SEARCH_DISTANCE_RATIO", "build_parser", "fos_controls", "main"]
+__all__ = ["build_parser", "main"]
 
-EXIT_OK, EXIT_IO, EXIT_SCENE, EXIT_RUN = 0, 1, 2, 3
+#: service.documents.SEARCH_DISTANCE_RATIO, written out: the parser imports no numpy
+#: (tests/test_cli.py checks that the two agree)
+SEARCH_DISTANCE_HELP = "contact search distance in m (default 0.001 x model size)"
 
 
-# --------------------------------------------------------------------------- helpers
+class _ProcessIds:
+    """The service's process ids (service.jobs.processes.PROCESS_IDS) as argparse choices,
+    imported only when argparse checks or lists them (not for --version or --help)."""
 
+    @staticmethod
+    def _ids() -> tuple[str, ...]:
+        from service.jobs.processes import PROCESS_IDS
 
-def _print_json(doc: Any) -> None:
-    json.dump(doc, sys.stdout, indent=2, allow_nan=False)
-    sys.stdout.write("\n")
+        return PROCESS_IDS
 
+    def __contains__(self, value: object) -> bool:
+        return value in self._ids()
 
-def _scene_failed(exc: SceneError) -> int:
-    for line in exc.lines():
-        print(line, file=sys.stderr)
-    return EXIT_SCENE
+    def __iter__(self) -> Iterator[str]:
+        return iter(self._ids())
 
 
-def _load(path: str, quiet: bool = False) -> BuildResult:
-    """Build the scene at `path` (SceneError on any problem); warnings go to stderr (unless
-    `quiet`: a --json document carries them)."""
-    result = build_model(Path(path))
-    if not quiet:
-        for w in result.warnings:
-            print(f"warning: {w}", file=sys.stderr)
-    return result
+def _command(module: str, name: str) -> Callable[[argparse.Namespace], int]:
+    """The command `name` of `service.cli.<module>`, imported when it runs."""
 
+    def command(args: argparse.Namespace) -> int:
+        return int(getattr(importlib.import_module(f"service.cli.{module}"), name)(args))
 
-# --------------------------------------------------------------------------- export
-
-
-def write_obj(path: Path, result: BuildResult) -> None:
-    """Wavefront OBJ: one object per block (named), polygon faces."""
-    lines = [f"# PolyDDA blocks, scene format {SCHEMA_VERSION}"]
-    base = 1
-    for name, block in zip(result.block_names, result.model.blocks, strict=True):
-        verts, faces = surface(block.polyhedron)
-        lines.append(f"o {name}")
-        lines.extend(f"v {x:.9g} {y:.9g} {z:.9g}" for x, y, z in verts)
-        lines.extend("f " + " ".join(str(base + i) for i in f) for f in faces)
-        base += len(verts)
-    path.write_text("\n".join(lines) + "\n", encoding="utf-8")
-
-
-def write_vtk(path: Path, result: BuildResult) -> None:
-    """Legacy VTK polydata (ASCII): polygon faces with cell data `block` and `fixed`."""
-    points, polys, block_of, fixed = [], [], [], []
-    base = 0
-    for k, block in enumerate(result.model.blocks):
-        verts, faces = surface(block.polyhedron)
-        points.append(verts)
-        for f in faces:
-            polys.append(f"{len(f)} " + " ".join(str(base + i) for i in f))
-            block_of.append(k)
-            fixed.append(int(block.fixed))
-        base += len(verts)
-    pts = np.vstack(points) if points else np.zeros((0, 3))
-    size = sum(len(p.split()) for p in polys)
-    lines = [
-        "# vtk DataFile Version 3.0",
-        f"PolyDDA blocks: {', '.join(result.block_names)[:200]}",
-        "ASCII",
-        "DATASET POLYDATA",
-        f"POINTS {len(pts)} double",
-        *(f"{x:.9g} {y:.9g} {z:.9g}" for x, y, z in pts),
-        f"POLYGONS {len(polys)} {size}",
-        *polys,
-        f"CELL_DATA {len(polys)}",
-        "SCALARS block int 1",
-        "LOOKUP_TABLE default",
-        *map(str, block_of),
-        "SCALARS fixed int 1",
-        "LOOKUP_TABLE default",
-        *map(str, fixed),
-    ]
-    path.write_text("\n".join(lines) + "\n", encoding="utf-8")
-
-
-EXPORTERS = {".obj": write_obj, ".vtk": write_vtk}
-
-
-# --------------------------------------------------------------------------- commands
-
-
-def cmd_blocks(args: argparse.Namespace) -> int:
-    """List the blocks of a scene (name, volume, concave, fixed) and the total volume."""
-    if args.export is not None and Path(args.export).suffix.lower() not in EXPORTERS:
-        print(f"--export: unknown file type '{Path(args.export).suffix}' "
-              f"(use {' or '.join(EXPORTERS)})", file=sys.stderr)
-        return EXIT_SCENE
-    result = _load(args.scene)
-    blocks = result.model.blocks
-    if args.export is not None:
-        out = Path(args.export)
-        try:
-            EXPORTERS[out.suffix.lower()](out, result)
-        except OSError as exc:
-            print(f"--export: cannot write {out}: {exc.strerror or exc}", file=sys.stderr)
-            return EXIT_IO
-    if args.json:
-        _print_json(blocks_document(result))
-        return EXIT_OK
-    width = max([len(n) for n in result.block_names] + [5])
-    print(f"{len(blocks)} block{'s' if len(blocks) != 1 else ''}")
-    print(f"{'name':<{width}}  {'volume (m3)':>14}  {'shape':<7}  fixed")
-    for name, b in zip(result.block_names, blocks, strict=True):
-        shape = "convex" if b.polyhedron.is_convex else "concave"
-        print(f"{name:<{width}}  {b.polyhedron.volume:>14.6g}  {shape:<7}  "
-              f"{'yes' if b.fixed else 'no'}")
-    total = sum(b.polyhedron.volume for b in blocks)
-    print(f"total volume: {total:.6g} m3")
-    if args.export is not None:
-        print(f"written: {args.export}")
-    return EXIT_OK
-
-
-def cmd_contacts(args: argparse.Namespace) -> int:
-    """The contact constraints of the scene as given (before any step)."""
-    result = _load(args.scene)
-    if args.search_distance is not None and not args.search_distance > 0:
-        print("--search-distance: must be positive", file=sys.stderr)
-        return EXIT_SCENE
-    doc = scene_contacts_document(result, args.search_distance)
-    rows, search = doc["contacts"], doc["search_distance"]
-    if args.json:
-        _print_json(doc)
-        return EXIT_OK
-    print(f"{len(rows)} contact constraint{'s' if len(rows) != 1 else ''} "
-          f"(search distance {search:.3g} m)")
-    for k, c in enumerate(rows, 1):
-        pt = ", ".join(f"{x:.3f}" for x in c["point_i"])
-        nm = ", ".join(f"{x:.3f}" for x in c["normal"])
-        print(f"{k:>4}  {c['block_i']} / {c['block_j']}  {c['type']:<13} ({pt})  "
-              f"n=({nm})  {c['mode']:<7} gap={c['gap']:.3g} m")
-    return EXIT_OK
-
-
-def cmd_schema(args: argparse.Namespace) -> int:
-    """Print the JSON Schema of the scene format."""
-    _print_json(scene_json_schema())
-    return EXIT_OK
-
-
-def cmd_validate(args: argparse.Namespace) -> int:
-    """Check a scene completely (including cutting and overlaps); print `ok` or the problems
-    (with --json: one document `{"valid", "blocks", "fixed", "warnings", "problems"}`)."""
-    if not args.json:
-        result = _load(args.scene)
-        n = len(result.model.blocks)
-        print(f"ok: {n} block{'s' if n != 1 else ''}, "
-              f"{sum(b.fixed for b in result.model.blocks)} fixed")
-        return EXIT_OK
-    try:
-        result = build_model(Path(args.scene))
-    except SceneError as exc:
-        _print_json({"valid": False, "problems": exc.problems})
-        return EXIT_SCENE
-    _print_json({"valid": True, "blocks": len(result.model.blocks),
-                 "fixed": sum(b.fixed for b in result.model.blocks),
-                 "warnings": result.warnings, "problems": []})
-    return EXIT_OK
-
-
-# --------------------------------------------------------------------------- run, fos, plot
-
-
-class _ProgressPrinter:
-    """Prints run progress to stderr: in place on a terminal, else every 10 %."""
-
-    def __init__(self, label: str) -> None:
-        self.label = label
-        self.tty = sys.stderr.isatty()
-        self.last_wall = 0.0
-        self.last_decile = -1
-
-    def __call__(self, p: Progress) -> None:
-        now = time.monotonic()
-        decile = int(10 * p.fraction)
-        if self.tty and now - self.last_wall < 0.2 and p.fraction < 1:
-            return
-        if not self.tty and decile == self.last_decile:
-            return
-        self.last_wall, self.last_decile = now, decile
-        line = (f"{self.label}: step {p.step}  t = {p.time:.4g} / {p.duration:g} s  "
-                f"({100 * p.fraction:.0f} %)  dt = {p.dt:.3g} s")
-        print(("\r" + line) if self.tty else line, end="" if self.tty else "\n",
-              file=sys.stderr, flush=True)
-
-
-def cmd_run(args: argparse.Namespace) -> int:
-    """Run the scene's simulation; write the HDF5 result and optionally a JSON summary."""
-    built = _load(args.scene, quiet=args.json)
-    scene_text = Path(args.scene).read_text(encoding="utf-8")
-    out = Path(args.out)
-    try:
-        out.parent.mkdir(parents=True, exist_ok=True)
-        writer = ResultWriter(out, overwrite=True, schema_version=SCHEMA_VERSION,
-                              record_contacts=built.model.controls.record_contacts)
-    except OSError as exc:
-        print(f"cannot write {out}: {exc}", file=sys.stderr)
-        return EXIT_IO
-    printer = None if args.quiet or args.json else _ProgressPrinter(Path(args.scene).stem)
-    if printer is not None:
-        _note_compilation()
-    res = _run_built(args, built, writer, printer, scene_text, out)
-    if res is None:
-        return EXIT_SCENE
-    if printer is not None and printer.tty:
-        print(file=sys.stderr)
-    summary = run_summary(res.summary, built)
-    if args.summary:
-        try:
-            write_json_atomic(Path(args.summary), summary)
-        except OSError as exc:
-            print(f"cannot write {args.summary}: {exc}", file=sys.stderr)
-            return EXIT_IO
-    if args.json:
-        _print_json(summary | {"result": str(out)})
-        return EXIT_OK if res.status == STATUS_COMPLETED else EXIT_RUN
-    print(f"{res.status}: {res.steps} steps, {res.state.time:.6g} s simulated in "
-          f"{res.wall_time:.3g} s; max penetration {res.max_penetration:.3g} m; "
-          f"result {out}", file=sys.stderr)
-    if res.message:
-        print(res.message, file=sys.stderr)
-    for w in res.summary.get("warnings", []):
-        print(f"warning: {w}", file=sys.stderr)
-    return EXIT_OK if res.status == STATUS_COMPLETED else EXIT_RUN
-
-
-def _run_built(args: argparse.Namespace, built: Any, writer: ResultWriter,
-               printer: _ProgressPrinter | None, scene_text: str, out: Path) -> Any:
-    """Run the scene (through its stages, saving each stage's end in --checkpoints, or from
-    --resume-from); None after a problem with the checkpoint (said on stderr)."""
-    from engine.step.staged_run import checkpoint_fits, load_checkpoint, run_scene
-
-    resume = None
-    if args.resume_from:
-        if not built.stages:
-            print("--resume-from: the scene has no stages to resume", file=sys.stderr)
-            return None
-        try:
-            resume = load_checkpoint(args.resume_from)
-        except (OSError, ValueError, KeyError) as exc:
-            print(f"--resume-from: cannot read {args.resume_from} ({exc})", file=sys.stderr)
-            return None
-        why = checkpoint_fits(built.model, built.stages, resume[1])
-        if why:
-            print(f"--resume-from: {why}", file=sys.stderr)
-            return None
-    checkpoints = args.checkpoints or (f"{out}.stages" if built.stages else None)
-    return run_scene(built.model, built.stages, recorder=writer, progress=printer,
-                     scene_json=scene_text, checkpoints=checkpoints, resume=resume)
-
-
-def _one_model(built: BuildResult, analysis: str) -> None:
-    """SceneError (exit 2) when an analysis of one model is asked of a staged scene."""
-    from schemas.stage_checks import refuse_stages
-
-    refuse_stages(built, analysis)
-
-
-def _note_compilation() -> None:
-    """Say why the first step of the first run on a machine takes a while."""
-    from engine import kernels_cached
-
-    if not kernels_cached():
-        print("compiling the engine's numerical kernels: the first run on this machine "
-              "takes about a minute longer (they are cached afterwards)", file=sys.stderr)
-
-
-def _trial_printer(args: argparse.Namespace, factor: str) -> Callable[[TrialRun], None]:
-    """The progress line of a bisection trial (`factor` formats the value tried), printed
-    to stderr unless --quiet; says first when the kernels still have to compile."""
-    if not args.quiet:
-        _note_compilation()
-
-    def note(r: TrialRun) -> None:
-        if not args.quiet:
-            verdict = "fails" if r.failed else "holds"
-            print(f"{factor.format(r.factor)}: {verdict} (mean acceleration "
-                  f"{r.mean_acceleration:.3g} m/s²)", file=sys.stderr, flush=True)
-
-    return note
-
-
-def cmd_fos(args: argparse.Namespace) -> int:
-    """Factor of safety by strength reduction (bisection on tan φ / F)."""
-    built = _load(args.scene)
-    _one_model(built, "the factor-of-safety search")
-    note = _trial_printer(args, "F = {:.4f}")
-    result = factor_of_safety(built.model, fos_controls(built), progress=note)
-    doc = fos_document(result, built)
-    if args.json:
-        _print_json(doc)
-    else:
-        print(f"factor of safety {result.factor_of_safety:.4f} "
-              f"(critical friction angle {doc['critical_friction_angle']}) "
-              f"from {len(result.runs)} runs")
-        if result.message:
-            print(result.message)
-    return EXIT_OK if result.status == STATUS_COMPLETED else EXIT_RUN
-
-
-def cmd_seismic(args: argparse.Namespace) -> int:
-    """Critical (yield) seismic coefficient by bisection on kh."""
-    built = _load(args.scene)
-    _one_model(built, "the critical seismic coefficient search")
-    note = _trial_printer(args, "kh = {:.5f}")
-    result = critical_seismic_coefficient(built.model, seismic_controls(built), progress=note)
-    doc = seismic_document(result, built)
-    if args.json:
-        _print_json(doc)
-    else:
-        print(f"critical seismic coefficient kh = {result.critical_coefficient:.5f} "
-              f"(azimuth {result.azimuth_deg:g}°, kv {result.kv:g}) "
-              f"from {len(result.runs)} runs")
-        if result.message:
-            print(result.message)
-    return EXIT_OK if result.status == STATUS_COMPLETED else EXIT_RUN
-
-
-def cmd_kinematics(args: argparse.Namespace) -> int:
-    """Kinematic screening (Markland tests) of the scene's joints against its slope face;
-    with --plot, the equal-area stereonet as a PNG."""
-    result = kinematic_result(Path(args.scene))
-    if args.plot is not None:
-        from engine.analyses.stereonet import plot_stereonet
-
-        try:
-            plot_stereonet(result, Path(args.plot), title=Path(args.scene).stem)
-        except OSError as exc:
-            print(f"--plot: cannot write {args.plot}: {exc.strerror or exc}", file=sys.stderr)
-            return EXIT_IO
-    if args.json:
-        _print_json(kinematics_document(result))
-    else:
-        print(kinematics_text(result))
-        if args.plot is not None:
-            print(f"written: {args.plot}")
-    return EXIT_OK
-
-
-def _sweep_options(args: argparse.Namespace,
-                   scene: dict[str, Any]) -> dict[str, Any] | None:
-    """The scene's `sweep` with the command line's options over it (None: no parameter)."""
-    given = scene.get("sweep")
-    section = {k: v for k, v in (given if isinstance(given, dict) else {}).items()
-               if k != "realisations"}
-    for key in ("n", "seed", "mode"):
-        if getattr(args, key) is not None:
-            section[key] = getattr(args, key)
-    if args.friction_mean is not None or args.friction_sd is not None:
-        short = dict(section.get("friction_angle") or {})
-        short |= {k: v for k, v in (("mean", args.friction_mean), ("sd", args.friction_sd))
-                  if v is not None}
-        section["friction_angle"] = short
-    for text in args.parameter or ():
-        name, sep, spec = text.partition("=")
-        try:
-            value = json.loads(spec) if sep else None
-        except json.JSONDecodeError:
-            value = None
-        if not name or not isinstance(value, dict):
-            raise SceneError([{"loc": "--parameter", "msg": f"expected NAME={{JSON object}}, "
-                               f"got {text!r}"}])
-        section.setdefault("parameters", {})[name] = value
-    short = section.get("friction_angle")
-    if isinstance(short, dict) and not {"mean", "sd"} <= set(short):
-        return None
-    if not short and not section.get("parameters"):
-        return None
-    return section
-
-
-def cmd_sweep(args: argparse.Namespace) -> int:
-    """Sweep or Monte Carlo analysis: N realisations of the scene's parameters from a seed,
-    a factor of safety each (engine strength reduction or eq. 51), probability of failure."""
-    from service.sweep import run_sweep, spec_of_scene
-
-    scene = json.loads(Path(args.scene).read_text(encoding="utf-8"))
-    _one_model(build_model(Path(args.scene)), "a sweep")  # valid before any realisation
-    section = _sweep_options(args, scene)
-    if section is None:
-        print("polydda sweep: give --friction-mean and --friction-sd, or --parameter, or the "
-              "scene's sweep.parameters (or sweep.friction_angle)", file=sys.stderr)
-        return EXIT_SCENE
-    spec = spec_of_scene(dict(scene, sweep=section))  # SceneError: exit 2
-
-    def note(done: int, n: int, now: int) -> None:
-        if not args.quiet:
-            print(f"realisation {done}/{n} done ({now} evaluated now)", file=sys.stderr,
-                  flush=True)
-
-    if args.server is not None:
-        return _sweep_on_server(args, scene, spec)
-    if spec.mode == "dda" and not args.quiet:
-        _note_compilation()
-    try:
-        doc = run_sweep(scene, spec, Path(args.out), workers=args.workers, progress=note,
-                        limit=args.limit)
-    except ValueError as exc:
-        print(f"polydda sweep: {exc}", file=sys.stderr)
-        return EXIT_SCENE
-    return _print_sweep(args, spec, doc)
-
-
-def _sweep_on_server(args: argparse.Namespace, scene: dict[str, Any], spec: Any) -> int:
-    """`polydda sweep --server URL --jobs K`: the sweep as one job of the service fanned
-    out in K child jobs (the server merges them)."""
-    import httpx
-
-    from service.cli.client import ServiceError, Unreachable, sweep_parent
-
-    scene = dict(scene, sweep=spec.scene_sweep())
-    headers = {"X-API-Key": args.api_key} if args.api_key else {}
-    last = [-1]
-
-    def note(done: int, n: int, statuses: list[dict[str, Any]]) -> None:
-        if not args.quiet and done != last[0]:
-            last[0] = done
-            states = ", ".join(s["status"] for s in statuses)
-            print(f"{done}/{n} realisations done ({states})", file=sys.stderr, flush=True)
-
-    try:
-        with httpx.Client(base_url=args.server.rstrip("/"), headers=headers,
-                          timeout=60) as client:
-            doc = sweep_parent(client, scene, args.jobs, Path(args.out), on_progress=note)
-    except httpx.TransportError as exc:
-        print(f"polydda sweep: {Unreachable(str(exc))}", file=sys.stderr)
-        return EXIT_IO
-    except (Unreachable, ServiceError) as exc:
-        print(f"polydda sweep: {exc}", file=sys.stderr)
-        return EXIT_IO if isinstance(exc, Unreachable) else EXIT_SCENE
-    return _print_sweep(args, spec, doc)
-
-
-def _print_sweep(args: argparse.Namespace, spec: Any, doc: dict[str, Any]) -> int:
-    """The sweep's aggregate: JSON (--json) or a few lines."""
-    if args.json:
-        _print_json({k: v for k, v in doc.items() if k != "realisations"})
-        return EXIT_OK
-    for key in dict.fromkeys((spec.mode, "analytic")):
-        a = doc.get(key)
-        if a and a["n"]:
-            lo, hi = a["pof_interval_95"]
-            print(f"{key}: {a['n']} realisations, probability of failure "
-                  f"{100 * a['probability_of_failure']:.2f} % (95 % interval {100 * lo:.1f} to "
-                  f"{100 * hi:.1f} %), FS mean {a['mean']:.4f}, min {a['min']:.4f}")
-    if doc.get("pof_difference") is not None:
-        print(f"PoF difference ({spec.mode} - analytic): "
-              f"{100 * doc['pof_difference']:.2f} percentage points; FS relative difference "
-              f"max {100 * doc['fs_relative_difference']['max_abs']:.2f} %")
-    print(f"written: {Path(args.out) / 'sweep.json'}")
-    return EXIT_OK
-
-
-def _listed(values: list[str] | None) -> list[str] | None:
-    """Values of a repeatable option that also takes comma-separated lists."""
-    if values is None:
-        return None
-    return [v.strip() for value in values for v in value.split(",") if v.strip()]
-
-
-def cmd_plot(args: argparse.Namespace) -> int:
-    """PNG plots of a result file: histories, energy, displacement components, snapshots."""
-    from engine.results.plots import plot_all, snapshot_steps  # matplotlib only when plotting
-    from engine.results.reader import open_result
-
-    blocks = _listed(args.blocks)
-    try:
-        times = None if args.time is None else [float(t) for t in _listed(args.time) or []]
-        steps = None if args.step is None else [int(n) for n in _listed(args.step) or []]
-    except ValueError as exc:
-        print(f"--time / --step: not a number: {exc}", file=sys.stderr)
-        return EXIT_SCENE
-    if not Path(args.result).is_file():
-        print(f"polydda plot: no such result file: {args.result}", file=sys.stderr)
-        return EXIT_IO
-    try:
-        result = open_result(args.result)
-    except (OSError, KeyError, ValueError) as exc:
-        print(f"cannot plot {args.result}: {exc}", file=sys.stderr)
-        return EXIT_IO
-    with result:
-        try:  # the choices, against the file: bad arguments exit 2
-            for b in blocks or []:
-                result.block_index(b)
-            snapshot_steps(result, times, steps)
-        except (KeyError, ValueError) as exc:
-            names = ", ".join(result.block_names)
-            hint = f" (blocks: {names})" if isinstance(exc, KeyError) else ""
-            print(f"{exc.args[0] if exc.args else exc}{hint}", file=sys.stderr)
-            return EXIT_SCENE
-        try:
-            paths = plot_all(result, args.out, blocks=blocks, times=times, steps=steps)
-        except (OSError, KeyError, ValueError) as exc:
-            print(f"cannot plot {args.result}: {exc}", file=sys.stderr)
-            return EXIT_IO
-    for p in paths:
-        print(p)
-    return EXIT_OK
-
-
-# --------------------------------------------------------------------------- service
-
-
-def cmd_serve(args: argparse.Namespace) -> int:
-    """Start the REST API with its embedded workers (or the RQ backend, by settings); exit
-    code 1 when another server owns the data directory."""
-    from service.api.app import serve
-
-    return serve(args.host, args.port)
-
-
-def cmd_worker(args: argparse.Namespace) -> int:
-    """Start one scale-out worker on the Redis queue (options: service.jobs.worker)."""
-    from service.jobs.worker import run as run_worker
-
-    return run_worker(args)
-
-
-def cmd_submit(args: argparse.Namespace) -> int:
-    """Submit a scene to a running server; with --wait, follow it to the end."""
-    from service.cli.client import ServiceError, Unreachable, print_status, submit
-
-    if not Path(args.scene).is_file():
-        print(f"polydda submit: no such scene file: {args.scene}", file=sys.stderr)
-        return EXIT_IO
-    try:
-        doc = submit(args.url, args.scene, wait=args.wait, process=args.process,
-                     api_key=args.api_key, on_status=print_status, retries=args.retries)
-    except Unreachable as exc:
-        print(f"polydda submit: {exc}", file=sys.stderr)
-        return EXIT_IO
-    except ServiceError as exc:
-        print(str(exc), file=sys.stderr)
-        return EXIT_SCENE
-    _print_json(doc)
-    return EXIT_OK if doc.get("status") in ("successful", "accepted", "running") else EXIT_IO
-
-
-# --------------------------------------------------------------------------- parser
+    command.__name__ = command.__qualname__ = name
+    return command
 
 
 class _Parser(argparse.ArgumentParser):
@@ -614,21 +77,24 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("scene", help="scene JSON file")
     p.add_argument("--json", action="store_true", help="print one JSON document")
     p.add_argument("--export", metavar="FILE", help="write the blocks to FILE (.obj or .vtk)")
-    p.set_defaults(func=cmd_blocks)
+    p.set_defaults(func=_command("scenes", "cmd_blocks"))
 
     p = sub.add_parser("contacts", help="list the contact constraints of a scene as given")
     p.add_argument("scene", help="scene JSON file")
     p.add_argument("--json", action="store_true", help="print one JSON document")
     p.add_argument("--search-distance", type=float, metavar="M",
-                   help=f"contact search distance in m (default {SEARCH_DISTANCE_RATIO:g} x "
-                        "model size)")
-    p.set_defaults(func=cmd_contacts)
+                   help=SEARCH_DISTANCE_HELP)
+    p.set_defaults(func=_command("scenes", "cmd_contacts"))
 
     p = sub.add_parser("validate", help="check a scene and report every problem")
     p.add_argument("scene", help="scene JSON file")
     p.add_argument("--json", action="store_true",
                    help="print one JSON document (valid, blocks, warnings, problems)")
-    p.set_defaults(func=cmd_validate)
+    p.add_argument("--service-limits", action="store_true",
+                   help="also check a server's size limits (POLYDDA_MAX_BLOCKS, "
+                        "POLYDDA_MAX_VERTICES, POLYDDA_MAX_DURATION, POLYDDA_MAX_STEPS; "
+                        "stricter than the format's), as `polydda submit` would meet them")
+    p.set_defaults(func=_command("scenes", "cmd_validate"))
 
     p = sub.add_parser("run", help="run the simulation of a scene")
     p.add_argument("scene", help="scene JSON file")
@@ -641,30 +107,58 @@ def build_parser() -> argparse.ArgumentParser:
                    "each stage's end here as stage-<k>.npz (default: RESULT.h5.stages)")
     p.add_argument("--resume-from", metavar="STAGE.npz", help="continue a staged run from "
                    "the end of a stage (its checkpoint; the scene may change later stages)")
-    p.set_defaults(func=cmd_run)
+    p.set_defaults(func=_command("runs", "cmd_run"))
 
     p = sub.add_parser("fos", help="factor of safety by strength reduction")
     p.add_argument("scene", help="scene JSON file")
     p.add_argument("--json", action="store_true", help="print one JSON document")
     p.add_argument("--quiet", action="store_true", help="no progress output")
-    p.set_defaults(func=cmd_fos)
+    p.set_defaults(func=_command("runs", "cmd_fos"))
 
     p = sub.add_parser("seismic", help="critical (yield) seismic coefficient kh by bisection")
     p.add_argument("scene", help="scene JSON file (its 'seismic' gives azimuth and kv)")
     p.add_argument("--json", action="store_true", help="print one JSON document")
     p.add_argument("--quiet", action="store_true", help="no progress output")
-    p.set_defaults(func=cmd_seismic)
+    p.set_defaults(func=_command("runs", "cmd_seismic"))
     p = sub.add_parser("kinematics", help="kinematic screening (Markland tests, stereonet)",
                        description="planar and wedge sliding, flexural and direct toppling "
                                    "of the scene's joints against its slope_face")
     p.add_argument("scene", help="scene JSON file (with a slope_face)")
     p.add_argument("--json", action="store_true", help="print one JSON document")
     p.add_argument("--plot", metavar="OUT.png", help="write the stereonet to this PNG file")
-    p.set_defaults(func=cmd_kinematics)
+    p.set_defaults(func=_command("analyses", "cmd_kinematics"))
 
-    from service.cli.keyblocks import add_parser as add_keyblocks
+    p = sub.add_parser("keyblocks", help="key blocks of the scene's excavations (block "
+                       "theory) and what the DDA run did to them")
+    p.add_argument("scene", help="scene JSON file with excavations")
+    p.add_argument("--result", metavar="RESULT.h5", help="the scene's run: each block's "
+                   "final displacement and the DDA's verdict")
+    p.add_argument("--json", action="store_true", help="print one JSON document")
+    p.set_defaults(func=_command("keyblocks", "cmd_keyblocks"))
 
-    add_keyblocks(sub, _load)
+    p = sub.add_parser(
+        "stereonet", help="measured orientations: pole density, sets, Fisher mean and κ",
+        description="read dip / dip direction measurements (CSV), contour their poles' "
+                    "density on an equal-area stereonet, pick the sets (k-means on the "
+                    "sphere) and fit each one's Fisher mean, κ and 95 % cone; with --scene "
+                    "and --out, write them as the scene's joints (and with --sweep, as the "
+                    "sweep's Fisher parameters of their orientation)")
+    p.add_argument("measurements", help="CSV file: columns dip, dip_direction (degrees)")
+    p.add_argument("--sets", type=int, default=2, metavar="K",
+                   help="number of joint sets to pick (default 2)")
+    p.add_argument("--seed", type=int, default=0, help="seed of the k-means starts")
+    p.add_argument("--names", metavar="A,B",
+                   help="names of the sets, largest first (default J1, J2, ...)")
+    p.add_argument("--plot", metavar="OUT.png",
+                   help="the stereonet (default: MEASUREMENTS_stereonet.png beside the CSV)")
+    p.add_argument("--scene", metavar="SCENE.json", help="a scene to write the sets into")
+    p.add_argument("--out", metavar="NEW.json", help="where the scene with the sets goes")
+    p.add_argument("--spacing", type=float, metavar="M",
+                   help="spacing of joints added to the scene (default: one plane each)")
+    p.add_argument("--sweep", action="store_true",
+                   help="also add the sets' Fisher κ to the scene's sweep.parameters")
+    p.add_argument("--json", action="store_true", help="print one JSON document")
+    p.set_defaults(func=_command("orientations", "cmd_stereonet"))
 
     p = sub.add_parser(
         "sweep", help="sweep or Monte Carlo analysis: probability of failure",
@@ -702,7 +196,7 @@ def build_parser() -> argparse.ArgumentParser:
                    help="evaluate at most K new realisations, then aggregate those done")
     p.add_argument("--json", action="store_true", help="print the aggregate as JSON")
     p.add_argument("--quiet", action="store_true", help="no progress output")
-    p.set_defaults(func=cmd_sweep)
+    p.set_defaults(func=_command("analyses", "cmd_sweep"))
 
     p = sub.add_parser("plot", help="PNG plots of a result file")
     p.add_argument("result", help="HDF5 result file")
@@ -716,34 +210,60 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--step", metavar="N", action="append",
                    help="3-D snapshot at this recorded solver step (comma-separated or "
                         "repeated)")
-    p.set_defaults(func=cmd_plot)
+    p.set_defaults(func=_command("results", "cmd_plot"))
+
+    p = sub.add_parser("view", help="the 3-D viewer of a local result file in the browser",
+                       description="serve the viewer (and the report) of RESULT.h5 on a local "
+                                   "port and open it in the browser; Ctrl-C stops it")
+    p.add_argument("result", help="HDF5 result file (polydda run --out)")
+    p.add_argument("--host", default="127.0.0.1", help="address to listen on")
+    p.add_argument("--port", type=int, default=0, help="port (default: any free one)")
+    p.add_argument("--no-browser", action="store_true",
+                   help="print the address only; do not open a browser")
+    p.add_argument("--max-frames", type=int, default=2000, metavar="N",
+                   help="recorded steps the viewer loads at most (every k-th beyond)")
+    p.set_defaults(func=_command("results", "cmd_view"))
+
+    p = sub.add_parser("report", help="the printable report of a local result file",
+                       description="write the report of RESULT.h5 (conclusion, moving "
+                                   "blocks, plots, the scene) as one HTML file with its "
+                                   "figures inline, and a PDF of it when a Chromium is found")
+    p.add_argument("result", help="HDF5 result file (polydda run --out)")
+    p.add_argument("--out", metavar="REPORT.html",
+                   help="HTML file to write (default: the result's name with .html); the "
+                        "PDF goes beside it")
+    p.add_argument("--threshold", type=float, metavar="M",
+                   help="a free block that moved less than this many metres has not moved "
+                        "(default 0.01)")
+    p.add_argument("--no-pdf", action="store_true", help="write the HTML only")
+    p.set_defaults(func=_command("results", "cmd_report"))
 
     p = sub.add_parser("serve", help="start the REST API and its embedded workers")
     p.add_argument("--host", default="127.0.0.1", help="address to listen on")
     p.add_argument("--port", type=int, default=8000, help="port (default 8000)")
-    p.set_defaults(func=cmd_serve)
+    p.set_defaults(func=_command("remote", "cmd_serve"))
 
     p = sub.add_parser("worker", help="start a scale-out worker (Redis queue)",
                        description="work PolyDDA jobs from the Redis queue; each option "
                                    "overrides its POLYDDA_* variable")
     worker_options(p)
-    p.set_defaults(func=cmd_worker)
+    p.set_defaults(func=_command("remote", "cmd_worker"))
 
     p = sub.add_parser("submit", help="submit a scene to a running server")
     p.add_argument("scene", help="scene JSON file")
     p.add_argument("--url", default="http://127.0.0.1:8000", help="server URL")
-    p.add_argument("--process", choices=PROCESS_IDS,
-                   help="default: from the scene's analysis.type")
+    p.add_argument("--process", choices=_ProcessIds(), metavar="PROCESS",
+                   help="%(choices)s (default: from the scene's analysis.type)")
     p.add_argument("--api-key", help="API key, if the server requires one")
     p.add_argument("--wait", action="store_true", help="follow the job to its end")
     p.add_argument("--retries", type=int, default=5, metavar="N",
                    help="retries of a submission answered 429 / 503 or cut off, after the "
                         "server's Retry-After (same Idempotency-Key: never two jobs; "
                         "default 5)")
-    p.set_defaults(func=cmd_submit)
+    p.set_defaults(func=_command("remote", "cmd_submit"))
 
     p = sub.add_parser("schema", help="print the JSON Schema of the scene format")
-    p.set_defaults(func=cmd_schema)
+    p.set_defaults(func=_command("scenes", "cmd_schema"))
     return parser
 
 
@@ -766,10 +286,12 @@ def main(argv: Sequence[str] | None = None) -> int:
         args = parser.parse_args(argv)
     except SystemExit as exc:  # --help or a usage error
         return int(exc.code or 0)
+    from schemas.errors import SceneError  # pydantic: after --help / --version
+
     try:
         return int(args.func(args))
     except SceneError as exc:  # any command that builds a scene: problems, exit 2
-        return _scene_failed(exc)
+        return scene_failed(exc)
     except BrokenPipeError:  # output piped into a reader that closed early (`| head`)
         devnull = os.open(os.devnull, os.O_WRONLY)
         os.dup2(devnull, sys.stdout.fileno())

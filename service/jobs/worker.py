@@ -77,9 +77,11 @@ def run(args: argparse.Namespace) -> int:
     # reads its settings from the environment inside the work horse
     env = {**settings.worker_env(), "POLYDDA_DATA_DIR": str(settings.data_dir.resolve()),
            "POLYDDA_PROGRESS_INTERVAL": str(settings.progress_interval)}
-    if "numpy" in sys.modules and any(os.environ.get(k) != v for k, v in env.items()):
-        # started as `polydda worker`, whose CLI module loaded numpy (and its BLAS thread
-        # pool) already: become a fresh `python -m service.jobs.worker` (same pid) with `env`
+    if any(os.environ.get(k) != v for k, v in env.items()):
+        # become a fresh `python -m service.jobs.worker` (same pid) started with `env`: numpy
+        # (and its BLAS thread pool) must not be loaded yet, and the work horses it forks
+        # show the thread counts in their environment (/proc/PID/environ), not only in
+        # os.environ
         sys.stdout.flush()
         sys.stderr.flush()
         os.execve(sys.executable, [sys.executable, "-m", "service.jobs.worker", *argv_of(args)],

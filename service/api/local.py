@@ -1,0 +1,165 @@
+"""A local result file without a server: its report (`polydda report RESULT.h5`) and a small
+app that serves the service's own 3-D viewer for it (`polydda view RESULT.h5`).
+
+The app answers the URLs the viewer and its links use for a job (`/jobs/{id}`, `/viewer`,
+`/results/frames`, `/report`, `/static`), for one job whose id is the file's stem, so the
+viewer's page and script are the service's, unchanged.
+"""
+
+import re
+import tempfile
+import time
+from pathlib import Path
+from typing import Annotated, Any
+
+from service.api.report import ReportParts, report_page
+from service.jobs.store import JobRecord
+
+#: the viewer's request bounds (as the service's frames route)
+MAX_STEP = 100_000_000
+
+
+def local_job(path: Path, status: str) -> JobRecord:
+    """A simulation job standing for the result file at `path` (id: its stem): successful
+    when the run completed, running while it is written (the viewer follows it), else
+    failed."""
+    ident = re.sub(r"[^A-Za-z0-9_.-]", "_", path.stem) or "result"
+    now = path.stat().st_mtime
+    state = {"completed": "successful", "running": "running"}.get(status, "failed")
+    return JobRecord(id=ident, process="simulation", status=state, client="local",
+                     idempotency_key=None, request_hash=None, created=now, started=now,
+                     finished=now, updated=now, progress=100.0, step=None,
+                     simulated_time=None, duration=None, message=f"run {status}",
+                     error_kind=None, cancel_requested=None, attempts=1, worker_pid=None)
+
+
+def _build_warnings(scene_text: str | None) -> list[str]:
+    """The scene's build warnings (cutting, fixed blocks, friction), which the result
+    file's summary does not hold; none when the scene does not build here."""
+    if not scene_text:
+        return []
+    from schemas.convert import build_model
+    from schemas.errors import SceneError
+
+    try:
+        return list(build_model(scene_text).warnings)
+    except (SceneError, ValueError):
+        return []
+
+
+def result_parts(path: Path, work_dir: Path, threshold: float | None = None) -> ReportParts:
+    """Everything the report of the result file at `path` shows; its plots are made in
+    `work_dir` and carried inline (data: URIs), so the page stands alone."""
+    from engine.results.plots import plot_all
+    from engine.results.reader import open_result
+    from service.api.results import kinematics_part, png_uri, scene_of
+
+    with open_result(path) as r:
+        scene_text = r.scene_json or ""
+        meta: dict[str, Any] = {"engine_version": r.engine_version,
+                                "schema_version": r.schema_version or "–",
+                                "scene_sha256": r.scene_sha256 or "–",
+                                "fixed": r.fixed.tolist(), "volume": r.volume.tolist(),
+                                "n_steps": r.n_steps}
+        if r.n_steps:
+            meta["last"] = {"time": float(r.times[-1]), "step": int(r.steps[-1])}
+        summary = r.summary
+        status, message = r.status, r.message
+        pngs = plot_all(r, work_dir / "plots")
+    documents = {}
+    if summary:
+        summary = dict(summary)
+        summary["warnings"] = list(dict.fromkeys(
+            [*_build_warnings(scene_text), *(summary.get("warnings") or [])]))
+        documents["summary.json"] = summary
+    snapshot = None
+    plots = []
+    for p in pngs:
+        if p.name == "snapshot_final.png":
+            snapshot = png_uri(p)
+        else:
+            plots.append((p.name, png_uri(p)))
+    header = [("result file", str(path)), ("status", status), ("message", message or "–"),
+              ("written", time.strftime("%Y-%m-%d %H:%M:%S",
+                                        time.localtime(path.stat().st_mtime)))]
+    parts = ReportParts(title=path.stem, process_title="DDA simulation", header=header,
+                        scene_text=scene_text, documents=documents, plots=plots,
+                        result_meta=meta, snapshot=snapshot,
+                        kinematics=kinematics_part(work_dir, scene_of(scene_text)))
+    if threshold is not None:
+        parts.threshold = threshold
+    return parts
+
+
+def write_report(path: Path, out: Path, threshold: float | None = None) -> Path:
+    """The standalone HTML report of the result file at `path`, written to `out`."""
+    with tempfile.TemporaryDirectory(prefix="polydda-report-") as work:
+        html = report_page(result_parts(path, Path(work), threshold), standalone=True)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    out.write_text(html, encoding="utf-8")
+    return out
+
+
+def local_app(path: Path, max_frames: int = 2000) -> Any:
+    """A FastAPI app serving the viewer, the frames and the report of one result file."""
+    from fastapi import FastAPI, Query
+    from fastapi.responses import HTMLResponse, JSONResponse, RedirectResponse, Response
+    from fastapi.staticfiles import StaticFiles
+
+    from engine.results.reader import open_result
+    from service.api.frames import RangeError, encode_binary, to_json
+    from service.api.frames import frames as make_frames
+    from service.api.pages import viewer_html
+
+    with open_result(path) as r:
+        job = local_job(path, r.status)
+    base = f"/jobs/{job.id}"
+    app = FastAPI(title=f"PolyDDA viewer: {path.name}", docs_url=None, redoc_url=None,
+                  openapi_url=None)
+    app.mount("/static", StaticFiles(directory=Path(__file__).parents[1] / "static"),
+              name="static")
+    work = Path(tempfile.mkdtemp(prefix="polydda-view-"))
+    app.state.work_dir = work
+
+    @app.get("/")
+    def home() -> RedirectResponse:
+        return RedirectResponse(f"{base}/viewer")
+
+    @app.get(base)
+    def status() -> JSONResponse:
+        with open_result(path) as r:  # a run still writing the file ends meanwhile
+            now = local_job(path, r.status)
+        return JSONResponse({"id": now.id, "process": now.process, "status": now.status,
+                             "message": now.message, "result": str(path)})
+
+    @app.get(f"{base}/viewer", response_class=HTMLResponse)
+    def viewer() -> HTMLResponse:
+        return HTMLResponse(viewer_html(job, "", max_frames=max_frames))
+
+    @app.get(f"{base}/results")
+    def results() -> JSONResponse:
+        return JSONResponse({"id": job.id, "files": [str(path)]})
+
+    @app.get(f"{base}/results/frames")
+    def frames(start: Annotated[int, Query(ge=0, le=MAX_STEP)] = 0,
+               stop: Annotated[int | None, Query(ge=0, le=MAX_STEP)] = None,
+               stride: Annotated[int, Query(ge=1, le=MAX_STEP)] = 1,
+               geometry: bool = True, contacts: bool = False,
+               format: str = "binary") -> Response:
+        with open_result(path) as r:
+            try:
+                payload = make_frames(r, start, stop, stride, with_geometry=geometry,
+                                      contacts=contacts)
+            except RangeError as exc:
+                return JSONResponse({"detail": str(exc)}, status_code=422)
+        if format == "json":
+            return JSONResponse(to_json(payload))
+        return Response(encode_binary(payload), media_type="application/octet-stream",
+                        headers={"Cache-Control": "no-cache"})
+
+    @app.get(f"{base}/report", response_class=HTMLResponse)
+    def report() -> HTMLResponse:
+        return HTMLResponse(report_page(result_parts(path, work), standalone=True))
+
+    return app
+
