@@ -15,7 +15,7 @@ import re
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -43,7 +43,6 @@ from engine.model import (
     SeismicCoefficientControls,
     StrengthReductionControls,
 )
-from engine.step.stages import Stage
 from engine.tolerances import DEFAULT_TOLERANCES
 from schemas.errors import Problems, SceneError, fmt_num, fmt_point, format_loc
 from schemas.scene import (
@@ -57,6 +56,9 @@ from schemas.scene import (
     load_scene,
     scene_problems,
 )
+
+if TYPE_CHECKING:  # the stages' module imports the dynamics (numba): only staged scenes
+    from engine.step.stages import Stage
 
 #: interiors of two blocks that overlap deeper than this fraction of the model size clash
 OVERLAP_TOLERANCE = 1e-6
@@ -219,13 +221,13 @@ def _cut_domain(scene: Scene, p: Problems, warnings: list[str], base_dir: Path |
                 ) -> tuple[list[Polyhedron], list[str | None]]:
     """The blocks cut from the domain, sorted by centroid z, y, x (empty if no domain), and
     the excavation each lies in (None: rock that stays)."""
+    d = scene.domain
+    if d is None:
+        return [], []
     from engine.geometry.cutting.cut import cut_blocks
     from engine.geometry.excavations import _tiles
     from schemas.stage_convert import excavate_after, excavate_before, excavation_solids
 
-    d = scene.domain
-    if d is None:
-        return [], []
     domain, tiles = _domain(scene, p, base_dir)
     solids = excavation_solids(scene, p)
     if domain is None or p:
