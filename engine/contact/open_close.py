@@ -135,22 +135,35 @@ def round_off_gaps(system: BlockSystem, state: State, contacts: ContactSet) -> n
     return force / system.kn
 
 
-def contact_damping(system: BlockSystem, state: State, contacts: ContactSet
-                    ) -> tuple[np.ndarray, np.ndarray]:
-    """Normal and shear dashpots `(cn, cs)` `(c,)` N·s/m of the step's contacts: the
-    fraction `contact_damping` of critical damping, 2 ζ √(k m), of each contact's spring
-    carrying its share of the block pair's reduced mass (a fixed block's mass is infinite;
-    a pair's contacts share its mass equally)."""
+def pair_counts(pair: np.ndarray) -> np.ndarray:
+    """How many of the entries `pair (c,) int` equal each one `(c,)` (np.unique's counts
+    mapped back, without its cost for a few contacts)."""
+    order = np.argsort(pair, kind="stable")
+    sorted_pair = pair[order]
+    first = np.empty(len(pair), dtype=bool)
+    first[0] = True
+    np.not_equal(sorted_pair[1:], sorted_pair[:-1], out=first[1:])
+    starts = np.flatnonzero(first)
+    counts = np.diff(np.append(starts, len(pair)))
+    out = np.empty(len(pair), dtype=np.int64)
+    out[order] = np.repeat(counts, counts)
+    return out
+
+
+def contact_damping(system: BlockSystem, state: State, block_i: np.ndarray,
+                    block_j: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Normal and shear dashpots `(cn, cs)` `(c,)` N·s/m of contacts between blocks
+    `block_i`, `block_j (c,)`: the fraction `contact_damping` of critical damping,
+    2 ζ √(k m), of each contact's spring carrying its share of the block pair's reduced
+    mass (a fixed block's mass is infinite; a pair's contacts share its mass equally)."""
     zeta = system.controls.contact_damping
-    c = len(contacts)
+    c = len(block_i)
     if zeta <= 0 or c == 0:
         return np.zeros(c), np.zeros(c)
     mass = block_masses(system, state)
-    mi, mj = mass[contacts.block_i], mass[contacts.block_j]
+    mi, mj = mass[block_i], mass[block_j]
     reduced = 1.0 / (1.0 / mi + 1.0 / mj)
-    pair = contacts.block_i * system.n + contacts.block_j
-    _, inverse, count = np.unique(pair, return_inverse=True, return_counts=True)
-    share = reduced / count[inverse.ravel()]
+    share = reduced / pair_counts(block_i * system.n + block_j)
     return 2.0 * zeta * np.sqrt(system.kn * share), 2.0 * zeta * np.sqrt(system.ks * share)
 
 
@@ -162,7 +175,7 @@ def _terms(system: BlockSystem, state: State, contacts: ContactSet,
     # only the normal dashpot acts inside the solve: a shear dashpot on a locked contact is
     # viscous static friction (the shear dashpots after the step, engine.contact.damping,
     # keep theirs)
-    cn, _ = contact_damping(system, state, contacts)
+    cn, _ = contact_damping(system, state, bi, bj)
     return _Terms(
         bi=bi, bj=bj, normal=contacts.normal, d0=contacts.gap, shear0=shear0,
         ti=np.ascontiguousarray(asm.displacement_matrices(
