@@ -183,6 +183,32 @@ def _name_joints(text: str, scene: Scene) -> str:
                   text)
 
 
+#: the last few cuts, by the domain and the joint planes: the realisations of a sweep that
+#: vary strengths, water or loads cut the same blocks (and the blocks are immutable)
+_CUTS: dict[tuple[Any, ...], Any] = {}
+_CUTS_KEPT = 4
+
+
+def _cut(domain: Polyhedron, planes: list[JointPlane], min_volume: float | None,
+         min_width: float | None) -> Any:
+    """`cut_blocks` of the domain by the planes, from the cache when cut before."""
+    from engine.geometry.cutting.cut import cut_blocks
+
+    key = (domain.vertices.tobytes(), domain.face_indptr.tobytes(),
+           domain.face_indices.tobytes(), min_volume, min_width,
+           tuple((pl.normal.tobytes(), pl.point.tobytes(), pl.tag,
+                  None if pl.extent is None else np.asarray(pl.extent).tobytes())
+                 for pl in planes))
+    hit = _CUTS.get(key)
+    if hit is None:
+        hit = cut_blocks(domain, planes, min_block_volume=min_volume,
+                         min_block_width=min_width)
+        if len(_CUTS) >= _CUTS_KEPT:
+            _CUTS.pop(next(iter(_CUTS)))
+        _CUTS[key] = hit
+    return hit
+
+
 def _cut_domain(scene: Scene, p: Problems, warnings: list[str]) -> list[Polyhedron]:
     """The blocks cut from the domain, sorted by centroid z, y, x (empty if no domain)."""
     d = scene.domain
@@ -203,10 +229,7 @@ def _cut_domain(scene: Scene, p: Problems, warnings: list[str]) -> list[Polyhedr
     planes = _joint_planes(scene, domain, p)
     if p:
         return []
-    from engine.geometry.cutting.cut import cut_blocks
-
-    result = cut_blocks(domain, planes, min_block_volume=d.min_block_volume,
-                        min_block_width=d.min_block_width)
+    result = _cut(domain, planes, d.min_block_volume, d.min_block_width)
     for w in result.warnings:
         w = _name_joints(w, scene)
         if w not in warnings:
@@ -657,10 +680,11 @@ def build_model(scene: Scene | str | Path | dict[str, Any]) -> BuildResult:
         weak = (range(len(jmat_names)) if spec.joint_materials is None
                 else [jmat_names.index(n) for n in spec.joint_materials])
         fos = StrengthReductionControls(
-            observation_time=spec.observation_time, window_start=spec.window_start,
-            acceleration_threshold=spec.acceleration_threshold, tolerance=spec.tolerance,
+            observation_time=spec.observation_time,
+            displacement_limit=spec.displacement_limit, tolerance=spec.tolerance,
             min_factor=spec.min_factor, max_factor=spec.max_factor, max_runs=spec.max_runs,
             joint_materials=tuple(sorted(set(weak))), watch_blocks=tuple(sorted(set(watch))))
+        warnings += spec.old_criterion("analysis.factor_of_safety")
     kc = None
     kspec = scene.analysis.critical_seismic_coefficient
     if kspec is None and scene.analysis.type == "critical_seismic_coefficient":
@@ -673,10 +697,11 @@ def build_model(scene: Scene | str | Path | dict[str, Any]) -> BuildResult:
         if not watch:
             watch = [k for k, b in enumerate(blocks) if not b.fixed]
         kc = SeismicCoefficientControls(
-            observation_time=kspec.observation_time, window_start=kspec.window_start,
-            acceleration_threshold=kspec.acceleration_threshold, tolerance=kspec.tolerance,
+            observation_time=kspec.observation_time,
+            displacement_limit=kspec.displacement_limit, tolerance=kspec.tolerance,
             max_coefficient=kspec.max_coefficient, max_runs=kspec.max_runs,
             watch_blocks=tuple(sorted(set(watch))))
+        warnings += kspec.old_criterion("analysis.critical_seismic_coefficient")
     p.raise_if_any()
 
     if all(b.fixed for b in blocks):

@@ -44,8 +44,10 @@ def sweep_truncation(quantity: str, low: float | None = None,
     lo, hi, _ = SWEEP_QUANTITIES[quantity]
     return (lo if low is None else max(lo, low), hi if high is None else min(hi, high))
 
-#: the quantities eq. 51 (sweep mode `analytic`) takes into account
-ANALYTIC_QUANTITIES = ("friction_angle", "joint_orientation")
+#: the quantities limit equilibrium (sweep mode `analytic`) takes into account: all but the
+#: DDA's numerical settings
+ANALYTIC_QUANTITIES = ("friction_angle", "cohesion", "joint_orientation", "water_level", "kh",
+                       "bolt_pretension", "bolt_capacity")
 MODES = ("dda", "analytic")
 #: the parameter drawn from the seed itself (the friction-only sweeps' stream)
 LEGACY_NAME = "friction_angle"
@@ -158,8 +160,9 @@ class SweepSpec:
         if self.mode == "analytic":
             bad = [p.name for p in self.parameters if p.quantity not in ANALYTIC_QUANTITIES]
             if bad:
-                raise ValueError(f"eq. 51 (mode 'analytic') covers only "
-                                 f"{' and '.join(ANALYTIC_QUANTITIES)}, not {', '.join(bad)}")
+                raise ValueError(f"limit equilibrium (mode 'analytic') has no "
+                                 f"{', '.join(bad)}: those are settings of the DDA; use "
+                                 "mode 'dda'")
 
     def all_parameters(self) -> tuple[Parameter, ...]:
         """The short-form friction angle (if given) and then the parameters, in order."""
@@ -186,7 +189,7 @@ class SweepSpec:
         return self.draws()[LEGACY_NAME]
 
     def analytic_applies(self) -> bool:
-        """Whether eq. 51 takes every parameter into account."""
+        """Whether limit equilibrium takes every parameter into account."""
         return all(p.quantity in ANALYTIC_QUANTITIES for p in self.all_parameters())
 
     def indices(self) -> list[int]:
@@ -285,8 +288,8 @@ def sensitivity_inputs(records: Sequence[Mapping[str, Any]]) -> dict[str, list[f
 
 
 def sweep_document(spec: SweepSpec, records: list[dict[str, Any]]) -> dict[str, Any]:
-    """Aggregate of the realisations done: by `spec.mode`, and by eq. 51 over the same
-    realisations when the scene is a two-joint wedge (and eq. 51 takes every parameter);
+    """Aggregate of the realisations done: by `spec.mode`, and by limit equilibrium over
+    the same realisations when it applies to every one (`analytic_note` says why not);
     their PoF difference. The sensitivity is Spearman's ρ of FS and each parameter."""
     inputs = sensitivity_inputs(records)
     fs = [r["factor_of_safety"] if r.get("status") == "completed" else None for r in records]
@@ -307,5 +310,9 @@ def sweep_document(spec: SweepSpec, records: list[dict[str, Any]]) -> dict[str, 
         doc["fs_relative_difference"] = {
             "mean": float(rel[ok].mean()) if ok.any() else None,
             "max_abs": float(np.abs(rel[ok]).max()) if ok.any() else None}
+    notes = sorted({r["analytic_note"] for r in records if r.get("analytic_note")})
+    if notes:
+        doc["analytic_note"] = ("limit equilibrium did not apply to every realisation: "
+                                + "; ".join(notes[:3]))
     doc["realisations"] = records
     return finite(doc)

@@ -21,6 +21,7 @@ from typing import Any
 import numpy as np
 
 from engine.analyses.strength_reduction import (
+    QuasiStatic,
     TrialRun,
     critical_seismic_coefficient,
     factor_of_safety,
@@ -294,24 +295,30 @@ def _trial_printer(args: argparse.Namespace, factor: str) -> Callable[[TrialRun]
     def note(r: TrialRun) -> None:
         if not args.quiet:
             verdict = "fails" if r.failed else "holds"
-            print(f"{factor.format(r.factor)}: {verdict} (mean acceleration "
-                  f"{r.mean_acceleration:.3g} m/s²)", file=sys.stderr, flush=True)
+            print(f"{factor.format(r.factor)}: {verdict}: {r.reason} (displacement "
+                  f"{r.displacement:.3g} m, velocity {r.velocity:.3g} m/s)", file=sys.stderr,
+                  flush=True)
 
     return note
 
 
 def cmd_fos(args: argparse.Namespace) -> int:
-    """Factor of safety by strength reduction (bisection on tan φ / F)."""
+    """Factor of safety by strength reduction (bisection on tan φ / F); exit 2 for a
+    quasi-static scene (no trial could fail)."""
     built = _load(args.scene)
     note = _trial_printer(args, "F = {:.4f}")
-    result = factor_of_safety(built.model, fos_controls(built), progress=note)
+    try:
+        result = factor_of_safety(built.model, fos_controls(built), progress=note)
+    except QuasiStatic as exc:
+        raise SceneError([{"loc": "analysis.mode", "msg": str(exc)}]) from None
     doc = fos_document(result, built)
     if args.json:
         _print_json(doc)
     else:
-        print(f"factor of safety {result.factor_of_safety:.4f} "
+        sign = {"lower": "≥ ", "upper": "< "}.get(result.bound or "", "")
+        print(f"factor of safety {sign}{result.factor_of_safety:.4f} "
               f"(critical friction angle {doc['critical_friction_angle']}) "
-              f"from {len(result.runs)} runs")
+              f"from {len(result.runs)} trials")
         if result.message:
             print(result.message)
     return EXIT_OK if result.status == STATUS_COMPLETED else EXIT_RUN
@@ -321,7 +328,11 @@ def cmd_seismic(args: argparse.Namespace) -> int:
     """Critical (yield) seismic coefficient by bisection on kh."""
     built = _load(args.scene)
     note = _trial_printer(args, "kh = {:.5f}")
-    result = critical_seismic_coefficient(built.model, seismic_controls(built), progress=note)
+    try:
+        result = critical_seismic_coefficient(built.model, seismic_controls(built),
+                                              progress=note)
+    except QuasiStatic as exc:
+        raise SceneError([{"loc": "analysis.mode", "msg": str(exc)}]) from None
     doc = seismic_document(result, built)
     if args.json:
         _print_json(doc)
@@ -332,6 +343,20 @@ def cmd_seismic(args: argparse.Namespace) -> int:
         if result.message:
             print(result.message)
     return EXIT_OK if result.status == STATUS_COMPLETED else EXIT_RUN
+
+
+def cmd_le(args: argparse.Namespace) -> int:
+    """Limit equilibrium of the scene's one free block (planar or two-plane wedge, the
+    vector method); exit 2 naming why when it does not apply."""
+    from service.documents import le_document, le_result, le_text
+
+    built = _load(args.scene, quiet=args.json)
+    doc = le_document(le_result(built), built)
+    if args.json:
+        _print_json(doc)
+    else:
+        print(le_text(doc))
+    return EXIT_OK
 
 
 def cmd_kinematics(args: argparse.Namespace) -> int:
@@ -389,17 +414,22 @@ def _sweep_options(args: argparse.Namespace,
 
 def cmd_sweep(args: argparse.Namespace) -> int:
     """Sweep or Monte Carlo analysis: N realisations of the scene's parameters from a seed,
-    a factor of safety each (engine strength reduction or eq. 51), probability of failure."""
+    a factor of safety each (engine strength reduction or limit equilibrium), probability of
+    failure."""
     from service.sweep import run_sweep, spec_of_scene
 
     scene = json.loads(Path(args.scene).read_text(encoding="utf-8"))
-    build_model(scene)  # the scene must be valid before any realisation
+    built = build_model(scene)  # the scene must be valid before any realisation
     section = _sweep_options(args, scene)
     if section is None:
         print("polydda sweep: give --friction-mean and --friction-sd, or --parameter, or the "
               "scene's sweep.parameters (or sweep.friction_angle)", file=sys.stderr)
         return EXIT_SCENE
     spec = spec_of_scene(dict(scene, sweep=section))  # SceneError: exit 2
+    if spec.mode == "analytic":  # limit equilibrium must apply (SceneError: exit 2)
+        from service.documents import le_result
+
+        le_result(built)
 
     def note(done: int, n: int, now: int) -> None:
         if not args.quiet:
@@ -609,6 +639,15 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--quiet", action="store_true", help="no progress output")
     p.set_defaults(func=cmd_fos)
 
+    p = sub.add_parser("le", help="limit equilibrium of a planar block or a two-plane wedge",
+                       description="the vector method (Hoek & Bray; Low 1997) on the scene's "
+                                   "one free block: cohesion, water, bolts and tendons, "
+                                   "seismic kh / kv, point loads; exit 2 saying why when it "
+                                   "does not apply")
+    p.add_argument("scene", help="scene JSON file")
+    p.add_argument("--json", action="store_true", help="print one JSON document")
+    p.set_defaults(func=cmd_le)
+
     p = sub.add_parser("seismic", help="critical (yield) seismic coefficient kh by bisection")
     p.add_argument("scene", help="scene JSON file (its 'seismic' gives azimuth and kv)")
     p.add_argument("--json", action="store_true", help="print one JSON document")
@@ -644,7 +683,8 @@ def build_parser() -> argparse.ArgumentParser:
                         "20000}' (Pa; angles in degrees); repeat for several")
     p.add_argument("--mode", choices=("dda", "analytic"),
                    help="dda: the engine's strength reduction per realisation; analytic: "
-                        "eq. 51 (two-joint wedge; friction and joint orientation only)")
+                        "limit equilibrium (a planar block or a two-plane wedge, with "
+                        "everything the scene has; refused, exit 2, where it does not apply)")
     p.add_argument("--out", required=True, metavar="DIR", help="folder of the sweep")
     p.add_argument("--workers", type=int, default=1, help="processes (default 1)")
     p.add_argument("--server", metavar="URL",
