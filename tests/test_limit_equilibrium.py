@@ -245,3 +245,56 @@ def test_api_process_and_its_refusal(tmp_path: Path) -> None:
         r = c.post("/processes/limit-equilibrium/execution", json=toppling)
         assert r.status_code == 422
         assert "one free block" in r.text
+
+
+def _sweep(name: str, tmp_path: Path, parameters: dict, capsys: pytest.CaptureFixture[str],
+           n: int) -> dict:
+    scene = json.loads((EXAMPLES / f"{name}.json").read_text())
+    scene["sweep"] = {"n": n, "seed": 1, "mode": "analytic", "parameters": parameters}
+    path = tmp_path / f"{name}.json"
+    path.write_text(json.dumps(scene))
+    assert main(["sweep", str(path), "--out", str(tmp_path / name), "--json", "--quiet"]) == 0
+    capsys.readouterr()
+    return json.loads((tmp_path / name / "sweep.json").read_text())
+
+
+def test_the_analytic_sweep_counts_water_cohesion_bolts_and_seismic_load(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """Issue 30: a wedge with water got eq. 51's dry FS (21 % above the wet one). Now each
+    realisation is limit equilibrium on its own scene: the wet wedge 1.4581 at φ 40°
+    ((N_A + N_B − U_A − U_B) tan φ / (W sin ψi)), the planar block with c 0 and 5 kPa
+    1.1158 and 1.4576, the passive bolt of capacity 30 and 60 kN (Hoek & Bray's
+    ((W cos α + C sin θ) tan φ + C cos θ) / (W sin α): 1.3610, 1.8975), kh 0 and 0.1
+    (kv 0.1, φ 45°: ((1 − kv) cos α − kh sin α) tan φ / ((1 − kv) sin α + kh cos α) =
+    1.4281 and 1.1367)."""
+    wet = _sweep("wedge_water", tmp_path, {"friction_angle": {
+        "distribution": "values", "values": [40.0]}}, capsys, 1)
+    assert wet["realisations"][0]["factor_of_safety"] == pytest.approx(1.45812, rel=1e-4)
+    c = _sweep("planar_cohesion", tmp_path, {"cohesion": {
+        "distribution": "values", "values": [0.0, 5000.0]}}, capsys, 2)
+    base = W * math.cos(A) * TAN[38]
+    assert [r["factor_of_safety"] for r in c["realisations"]] == [
+        pytest.approx(base / (W * math.sin(A)), rel=1e-4),
+        pytest.approx((base + 20000) / (W * math.sin(A)), rel=1e-4)]
+    bolt = _sweep("planar_bolt_passive", tmp_path, {"bolt_capacity": {
+        "distribution": "values", "values": [30000.0, 60000.0]}}, capsys, 2)
+    th = math.radians(55)
+    expected = [((W * math.cos(A) + cap * math.sin(th)) * TAN[30] + cap * math.cos(th))
+                / (W * math.sin(A)) for cap in (30000.0, 60000.0)]
+    assert [r["factor_of_safety"] for r in bolt["realisations"]] == [
+        pytest.approx(e, rel=1e-4) for e in expected]
+    kh = _sweep("planar_seismic", tmp_path, {"kh": {
+        "distribution": "values", "values": [0.0, 0.1]}}, capsys, 2)
+    expected = [(0.9 * math.cos(A) - k * math.sin(A)) * TAN[45]
+                / (0.9 * math.sin(A) + k * math.cos(A)) for k in (0.0, 0.1)]
+    assert [r["factor_of_safety"] for r in kh["realisations"]] == [
+        pytest.approx(e, rel=1e-4) for e in expected]
+
+
+def test_an_analytic_sweep_where_limit_equilibrium_does_not_apply_exits_2(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """Issue 30: on a scene that is not a wedge `--mode analytic` exited 0 with no result."""
+    args = ["sweep", str(EXAMPLES / "toppling.json"), "--friction-mean", "30",
+            "--friction-sd", "3", "--n", "5", "--mode", "analytic", "--out", str(tmp_path)]
+    assert main(args) == 2
+    assert "one free block" in capsys.readouterr().err

@@ -6,9 +6,10 @@ F gives the factor of safety, eq. 52: `F_s = tan φ / tan φ_r`. Each trial star
 model settled under its loads and is judged by the watched blocks' displacement and
 velocity (:mod:`engine.analyses.trials`): it fails when a block moves beyond the
 displacement limit or keeps moving without slowing down, and holds (ending early) when
-every watched block is at rest on stuck contacts. Bolts, cables and water act in every
-trial exactly as in a run. The critical seismic coefficient bisects on kh with the same
-trials, each settled under its own seismic load.
+every watched block is at rest on stuck contacts; a trial continues from the end of the
+trial that held at the largest factor below it (incremental reduction). Bolts, cables and
+water act in every trial exactly as in a run. The critical seismic coefficient bisects on
+kh with the same trials (the first settled under its own seismic load).
 """
 
 from __future__ import annotations
@@ -98,9 +99,35 @@ def trial(model: Model, factor: float, controls: StrengthReductionControls,
           start: Settled | None = None) -> TrialRun:
     """One trial with the strengths reduced by `factor`, from `start` (default: the model
     settled afresh)."""
-    start = start or start_of_trials(model, controls)
+    return _trial(model, factor, controls, start or start_of_trials(model, controls))[0]
+
+
+def _trial(model: Model, factor: float, controls: StrengthReductionControls,
+           start: Settled) -> tuple[TrialRun, Settled | None]:
     m = reduced_model(model, factor, controls.observation_time, controls.joint_materials)
     return run_trial(m, factor, start)
+
+
+class _Starts:
+    """Where a search's next trial starts: the end state of the trial that held, at rest,
+    at the largest value below it (incremental reduction), else the settled model."""
+
+    def __init__(self, settled: Settled | None) -> None:
+        self.settled = settled
+        self.best: Settled | None = None
+
+    def before(self, value: float) -> Settled | None:
+        if self.best is not None and self.best.factor is not None and self.best.factor < value:
+            return self.best
+        return self.settled
+
+    def held(self, end: Settled | None) -> None:
+        if end is not None and (self.best is None or end.factor > self.best.factor):
+            self.best = end
+
+    def at(self, value: float) -> bool:
+        """Whether the trial at `value` left an equilibrium to continue from."""
+        return self.best is not None and self.best.factor == value
 
 
 #: a guided trial is placed this fraction of the tolerance from the estimate, either side
@@ -132,17 +159,34 @@ def estimate(runs: list[TrialRun], x_of: Callable[[float], float],
     return f_of(x0) if x0 != 0 else None
 
 
+def _upper(runs: list[TrialRun], lo: float) -> float | None:
+    """The smallest value above `lo` that a trial failed at (None: none)."""
+    above = [r.factor for r in runs if r.failed and r.factor > lo]
+    return min(above) if above else None
+
+
 def bracket(check: Callable[[float], bool], lo: float, hi: float,
             narrow: Callable[[float, float], bool], runs: list[TrialRun], max_runs: int,
-            guess: Callable[[], float | None], tolerance: float) -> float:
+            guess: Callable[[], float | None], tolerance: float,
+            chained: Callable[[float], bool]) -> float:
     """Narrow the bracket [lo (holds), hi (fails)] until `narrow(lo, hi)`; its midpoint.
     Each step tries just below and then just above the `guess()` (the failed trials'
     estimate, `GUIDE_OFFSET × tolerance` away relative: a trial that holds is short, one
     that fails near the answer runs its whole window, so two guided trials close a bracket
     bisection needs four or five for), or bisects when there is no guess or the last
-    guided trial disagreed with it. Every answer is a bracket the trials verified."""
+    guided trial disagreed with it. A narrow bracket whose failure did not continue from
+    the trial at `lo` (`chained(lo)`: it left an equilibrium to continue from) is tried
+    again from there, and widened upward if it now holds: the answer is the incremental
+    one. Every answer is a bracket the trials verified."""
     guided = True
-    while not narrow(lo, hi) and len(runs) < max_runs:
+    while len(runs) < max_runs:
+        if narrow(lo, hi):
+            last = [r for r in runs if r.factor == hi][-1]
+            if last.continued_from == lo or not chained(lo) or check(hi):
+                break
+            lo, guided = hi, False  # it holds from lo's equilibrium: look above
+            hi = _upper(runs, lo) or lo * (1.0 + 4.0 * tolerance)
+            continue
         g = guess() if guided else None
         margin = 0.01 * (hi - lo)
         if g is not None and lo + margin < g < hi - margin:
@@ -153,7 +197,7 @@ def bracket(check: Callable[[float], bool], lo: float, hi: float,
                 continue
             lo = below
             if narrow(lo, hi) or len(runs) >= max_runs:
-                break
+                continue
             if check(above):
                 hi = above
             else:
@@ -177,10 +221,12 @@ def factor_of_safety(
     [min_factor, max_factor] (a bound beyond them); QuasiStatic for a quasi-static model."""
     c = controls or StrengthReductionControls()
     start = start_of_trials(model, c)
+    starts = _Starts(start)
     runs: list[TrialRun] = []
 
     def check(f: float) -> bool:
-        r = trial(model, f, c, start)
+        r, end = _trial(model, f, c, starts.before(f))
+        starts.held(end)
         runs.append(r)
         if progress is not None:
             progress(r)
@@ -198,7 +244,7 @@ def factor_of_safety(
 
     def narrow(lo: float, hi: float) -> FactorOfSafetyResult:
         return result(bracket(check, lo, hi, lambda a, b: (b - a) / a <= c.tolerance, runs,
-                              c.max_runs, guess, c.tolerance))
+                              c.max_runs, guess, c.tolerance, starts.at))
 
     f = min(max(1.0, c.min_factor), c.max_factor)
     if check(f):
@@ -269,11 +315,14 @@ def critical_seismic_coefficient(
     refuse_quasi_static(model, "the critical seismic coefficient")
     base = model.seismic or SeismicLoad()
     runs: list[TrialRun] = []
+    starts = _Starts(None)
 
     def check(kh: float) -> bool:
         m = seismic_model(model, kh, c.observation_time)
-        r = run_trial(m, kh, settle(m, c.watch_blocks, c.displacement_limit,
-                                    c.observation_time))
+        start = starts.before(kh) or settle(m, c.watch_blocks, c.displacement_limit,
+                                            c.observation_time)
+        r, end = run_trial(m, kh, start)
+        starts.held(end)
         runs.append(r)
         if progress is not None:
             progress(r)
@@ -296,4 +345,4 @@ def critical_seismic_coefficient(
         hi = min(2.0 * hi, c.max_coefficient)
     return result(bracket(check, lo, hi, lambda a, b: b - a <= c.tolerance * b, runs,
                           c.max_runs, lambda: estimate(runs, lambda k: -k, lambda x: -x),
-                          c.tolerance))
+                          c.tolerance, starts.at))

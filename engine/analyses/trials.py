@@ -8,13 +8,19 @@
    rest from its first step. A model that does not settle (a block with nothing under it)
    starts its trials from the scene as given, and the trial says so.
 2. **Release.** From the settled state the trial model (strengths divided by F, or the
-   seismic load of the trial) runs in dynamic steps, for at most `observation_time` s.
+   seismic load of the trial) runs in dynamic steps, for at most `observation_time` s. A
+   search continues each trial from the end of the trial that held, at rest, at the
+   largest factor below it (an equilibrium there), as incremental strength reduction
+   does: the step of strength it releases is small near the answer, so resistance that
+   builds up with displacement (bolts, the redistribution between a face's corners) is
+   mobilized with little overshoot instead of by a sudden drop from full strength.
 3. **Verdict**, with its reason:
 
    - *fails* as soon as a watched block's point has moved more than the displacement limit
      since the release (default 2 % of the smallest watched block's size V^⅓), or the run
      fails (a step that cannot converge), or at the end when the fastest watched point is
-     still moving (faster than the rest speed) and has not slowed to half its peak speed;
+     still moving (faster than the rest speed), has not slowed to half its peak speed and
+     is not slowing over the window's last tenth;
    - *holds* as soon as every watched block is at rest (speed below the rest speed,
      1e-3 × limit / observation time) with every contact it has stuck (locked) for
      REST_STEPS steps in a row: a rigid block at rest on locked contacts is in static
@@ -56,8 +62,9 @@ REST_STEPS = 10
 #: the rest speed as a fraction of the displacement limit over the observation time
 REST_SPEED_RATIO = 1e-3
 #: at the end of the window a block that is still faster than this fraction of its peak
-#: speed has not slowed down
+#: speed, and no slower than it was LATE_FRACTION of the window earlier, has not slowed down
 DECAY_RATIO = 0.5
+LATE_FRACTION = 0.1
 
 
 class QuasiStatic(ValueError):
@@ -69,7 +76,8 @@ class TrialRun:
     """One trial: the factor (or kh) tried, its verdict and why, the largest displacement
     (m) of a watched block's point since the release, the fastest watched point's speed at
     the end and its peak (m/s), the block that decided (-1: none), simulated time (s) and
-    steps of the trial, and the run's status."""
+    steps of the trial, the run's status, and the factor of the trial that held whose end
+    state this one continued from (None: the settled model)."""
 
     factor: float
     failed: bool
@@ -81,18 +89,21 @@ class TrialRun:
     time: float
     steps: int
     status: str
+    continued_from: float | None = None
 
 
 @dataclass
 class Settled:
     """Where trials start: the settled state (None: the scene as given), the displacement
-    limit (m) and rest speed (m/s), the watched blocks, and a note on the settling."""
+    limit (m) and rest speed (m/s), the watched blocks, a note on the settling, and the
+    factor whose trial held at rest in this state (None: the settled model)."""
 
     state: State | None
     limit: float
     rest_speed: float
     watch: np.ndarray
     note: str
+    factor: float | None = None
 
 
 def quasi_static_reason(dynamic_ratio: float, what: str = "the factor of safety"
@@ -212,9 +223,10 @@ class _Watch:
         return bool(np.all(cs.mode[closed] == LOCKED))
 
 
-def run_trial(model: Model, value: float, start: Settled) -> TrialRun:
+def run_trial(model: Model, value: float, start: Settled) -> tuple[TrialRun, Settled | None]:
     """Run the trial model `model` (its strengths or loads those of the trial `value`) from
-    `start` and judge it (see the module's docstring)."""
+    `start` and judge it (see the module's docstring); with the trial's end as a start for
+    the next trials when it held at rest (an equilibrium at `value`)."""
     state = copy.deepcopy(start.state) if start.state is not None else None
     t0 = state.time if state is not None else 0.0
     m = dataclasses.replace(model, controls=dataclasses.replace(
@@ -223,43 +235,50 @@ def run_trial(model: Model, value: float, start: Settled) -> TrialRun:
     w = _Watch(sim, start.watch)
     end = m.controls.duration - 1e-12 * max(m.controls.duration, 1.0)
     peak, rest, steps = 0.0, 0, 0
+    late, late_speed = t0 + (1.0 - LATE_FRACTION) * model.controls.duration, None
 
     def verdict(failed: bool, reason: str, status: str = STATUS_COMPLETED) -> TrialRun:
         disp, block = w.displacement(sim.state)
         speed, fast = w.speed(sim.state)
         return TrialRun(value, failed, reason, disp, speed, max(peak, speed),
                         block if failed and block >= 0 else fast, sim.state.time - t0, steps,
-                        status)
+                        status, start.factor)
 
     while sim.state.time < end:
         try:
             res = sim.step()
         except StepFailure as exc:
-            return verdict(True, f"the run failed: {exc}", STATUS_FAILED)
+            return verdict(True, f"the run failed: {exc}", STATUS_FAILED), None
         steps += 1
         s = sim.state
         finite = np.all(np.isfinite(s.velocity)) and np.all(np.isfinite(s.centroid))
         message = energy.check_run(sim.system, s) if finite else "non-finite state"
         if message:
-            return verdict(True, f"the run failed: {message}", STATUS_FAILED)
+            return verdict(True, f"the run failed: {message}", STATUS_FAILED), None
         disp, _ = w.displacement(s)
         if disp > start.limit:
             return verdict(True, f"moved {disp:.4g} m, more than the limit "
-                                 f"{start.limit:.4g} m, {s.time - t0:.3g} s after release")
+                                 f"{start.limit:.4g} m, {s.time - t0:.3g} s after release"
+                           ), None
         speed, _ = w.speed(s)
         peak = max(peak, speed)
+        if late_speed is None and s.time >= late:
+            late_speed = speed
         rest = rest + 1 if speed < start.rest_speed and w.stuck(res) else 0
         if rest >= REST_STEPS:
+            held = dataclasses.replace(start, state=s, factor=value)
             return verdict(False, f"at rest with every contact stuck {s.time - t0:.3g} s "
-                                  f"after release (moved {disp:.3g} m)")
-    return _at_end(verdict, w.speed(sim.state)[0], peak, start)
+                                  f"after release (moved {disp:.3g} m)"), held
+    return _at_end(verdict, w.speed(sim.state)[0], peak, late_speed, start), None
 
 
 def _at_end(verdict: Callable[[bool, str], TrialRun], speed: float, peak: float,
-            start: Settled) -> TrialRun:
-    """The verdict of a trial that reached the end of its window without a certain one."""
-    if speed > start.rest_speed and speed >= DECAY_RATIO * peak:
+            late: float | None, start: Settled) -> TrialRun:
+    """The verdict of a trial that reached the end of its window without a certain one
+    (`late`: the speed LATE_FRACTION of the window before its end)."""
+    slowing = late is not None and speed < late
+    if speed > start.rest_speed and speed >= DECAY_RATIO * peak and not slowing:
         return verdict(True, f"still moving at the end ({speed:.3g} m/s, peak "
                              f"{peak:.3g} m/s): the velocity does not decay")
     return verdict(False, f"moved less than the limit {start.limit:.4g} m and its speed "
-                          f"decayed ({speed:.3g} m/s at the end, peak {peak:.3g} m/s)")
+                          f"decays ({speed:.3g} m/s at the end, peak {peak:.3g} m/s)")

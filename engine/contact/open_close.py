@@ -135,9 +135,19 @@ def round_off_gaps(system: BlockSystem, state: State, contacts: ContactSet) -> n
     return force / system.kn
 
 
+#: below this many contacts a Python dict counts a step's block pairs faster than numpy
+SMALL_PAIR_COUNT = 64
+
+
 def pair_counts(pair: np.ndarray) -> np.ndarray:
     """How many of the entries `pair (c,) int` equal each one `(c,)` (np.unique's counts
     mapped back, without its cost for a few contacts)."""
+    if len(pair) <= SMALL_PAIR_COUNT:
+        keys = pair.tolist()
+        seen: dict[int, int] = {}
+        for k in keys:
+            seen[k] = seen.get(k, 0) + 1
+        return np.array([seen[k] for k in keys], dtype=np.int64)
     order = np.argsort(pair, kind="stable")
     sorted_pair = pair[order]
     first = np.empty(len(pair), dtype=bool)
