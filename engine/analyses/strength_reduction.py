@@ -112,9 +112,12 @@ class _Starts:
     """Where a search's next trial starts: the end state of the trial that held, at rest,
     at the largest value below it (incremental reduction), else the settled model."""
 
-    def __init__(self, settled: Settled | None) -> None:
+    def __init__(self, settled: Settled | None, chain: bool = True) -> None:
         self.settled = settled
         self.best: Settled | None = None
+        #: whether trials continue from each other (not under a ground-motion history:
+        #: every trial feels it from its start)
+        self.chain = chain
 
     def before(self, value: float) -> Settled | None:
         if self.best is not None and self.best.factor is not None and self.best.factor < value:
@@ -122,6 +125,8 @@ class _Starts:
         return self.settled
 
     def held(self, end: Settled | None) -> None:
+        if not self.chain:
+            return
         if end is not None and (self.best is None or end.factor > self.best.factor):
             self.best = end
 
@@ -221,7 +226,7 @@ def factor_of_safety(
     [min_factor, max_factor] (a bound beyond them); QuasiStatic for a quasi-static model."""
     c = controls or StrengthReductionControls()
     start = start_of_trials(model, c)
-    starts = _Starts(start)
+    starts = _Starts(start, chain=model.ground_motion is None)
     runs: list[TrialRun] = []
 
     def check(f: float) -> bool:
@@ -315,7 +320,7 @@ def critical_seismic_coefficient(
     refuse_quasi_static(model, "the critical seismic coefficient")
     base = model.seismic or SeismicLoad()
     runs: list[TrialRun] = []
-    starts = _Starts(None)
+    starts = _Starts(None, chain=model.ground_motion is None)
 
     def check(kh: float) -> bool:
         m = seismic_model(model, kh, c.observation_time)

@@ -145,13 +145,15 @@ def displacement_limit(model: Model, watch: np.ndarray, given: float | None) -> 
 
 def strong(model: Model) -> Model:
     """`model` with joints that cannot fail (tan φ SETTLE_TAN_PHI, cohesion SETTLE_COHESION,
-    tensile strengths as given), in quasi-static steps."""
+    tensile strengths as given), in quasi-static steps, under its static loads (a
+    ground-motion history starts with the trials)."""
     joints = [JointMaterial(float(np.arctan(SETTLE_TAN_PHI)), SETTLE_COHESION,
                             j.tensile_strength) for j in model.joint_materials]
     duration = 10.0 * MAX_SETTLE_STEPS * model.controls.time_step
     controls = dataclasses.replace(model.controls, dynamic_ratio=0.0, duration=duration,
                                    record_contacts=False)
-    return dataclasses.replace(model, joint_materials=joints, controls=controls)
+    return dataclasses.replace(model, joint_materials=joints, controls=controls,
+                               ground_motion=None)
 
 
 def settle(model: Model, watch: tuple[int, ...] | None, limit: float | None,
@@ -169,8 +171,9 @@ def settle(model: Model, watch: tuple[int, ...] | None, limit: float | None,
             moved = float(point_displacements(sim.system, res.d).max(initial=0.0))
             quiet = quiet + 1 if moved <= SETTLE_TOLERANCE * lim else 0
             if quiet >= SETTLED_STEPS:
-                state = sim.state
-                state.dt, state.diagnostics.dt_reason = model.controls.time_step, "asked"
+                state = sim.state  # the trials' clock starts at 0 (a ground motion's too)
+                state.time, state.dt = 0.0, model.controls.time_step
+                state.diagnostics.dt_reason = "asked"
                 return Settled(state, lim, rest, w, f"settled in {state.step} quasi-static "
                                                     "steps")
     except StepFailure as exc:
