@@ -69,11 +69,15 @@ def test_fos_matches_the_hand_worked_factor_of_safety(
     assert doc["bound"] is None and doc["status"] == "completed"
     for r in doc["runs"]:
         assert {"displacement", "velocity", "peak_velocity", "reason", "failed", "time",
-                "steps", "block", "continued_from"} <= set(r)
+                "steps", "block", "continued_from", "bonds_broken",
+                "bonds_broken_progressively"} <= set(r)
         assert r["reason"] and r["displacement"] >= 0 and r["velocity"] >= 0
         if r["failed"]:
             assert r["displacement"] > doc["displacement_limit"] or "moving" in r["reason"] \
                 or "failed" in r["reason"]
+    if name == "planar_cohesion":  # c A is one bond: it breaks whole when the block goes
+        assert all((r["bonds_broken"], r["bonds_broken_progressively"]) ==
+                   ((1, 0) if r["failed"] else (0, 0)) for r in doc["runs"])
     # the bracket: the largest factor that held and the smallest that failed are 1 % apart
     held = max(r["factor"] for r in doc["runs"] if not r["failed"])
     failed = min(r["factor"] for r in doc["runs"] if r["failed"] and r["factor"] > held)

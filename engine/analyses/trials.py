@@ -76,8 +76,10 @@ class TrialRun:
     """One trial: the factor (or kh) tried, its verdict and why, the largest displacement
     (m) of a watched block's point since the release, the fastest watched point's speed at
     the end and its peak (m/s), the block that decided (-1: none), simulated time (s) and
-    steps of the trial, the run's status, and the factor of the trial that held whose end
-    state this one continued from (None: the settled model)."""
+    steps of the trial, the run's status, the factor of the trial that held whose end
+    state this one continued from (None: the settled model), and the face-to-face bonds
+    (cohesion, tension over a patch) the trial broke whole and in part (progressively,
+    where the stress over the contact is uneven)."""
 
     factor: float
     failed: bool
@@ -90,6 +92,8 @@ class TrialRun:
     steps: int
     status: str
     continued_from: float | None = None
+    bonds_broken: int = 0
+    bonds_broken_progressively: int = 0
 
 
 @dataclass
@@ -240,12 +244,17 @@ def run_trial(model: Model, value: float, start: Settled) -> tuple[TrialRun, Set
     peak, rest, steps = 0.0, 0, 0
     late, late_speed = t0 + (1.0 - LATE_FRACTION) * model.controls.duration, None
 
+    bonds0 = (sim.state.diagnostics.bonds_broken,
+              sim.state.diagnostics.bonds_broken_progressively)
+
     def verdict(failed: bool, reason: str, status: str = STATUS_COMPLETED) -> TrialRun:
         disp, block = w.displacement(sim.state)
         speed, fast = w.speed(sim.state)
+        d = sim.state.diagnostics
         return TrialRun(value, failed, reason, disp, speed, max(peak, speed),
                         block if failed and block >= 0 else fast, sim.state.time - t0, steps,
-                        status, start.factor)
+                        status, start.factor, d.bonds_broken - bonds0[0],
+                        d.bonds_broken_progressively - bonds0[1])
 
     while sim.state.time < end:
         try:
