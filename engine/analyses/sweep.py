@@ -18,8 +18,6 @@ from typing import Any
 
 import numpy as np
 
-from engine.analyses.jointstats import Distribution, fisher_angles_of
-from engine.analyses.reliability import aggregate, truncated_normal
 from engine.jsonable import finite
 
 #: what a sweep may vary: (lowest, highest, unit) of each quantity; a normal or lognormal
@@ -96,6 +94,11 @@ class Parameter:
     def draw(self, n: int, seed: int) -> np.ndarray:
         """Realisations 0 .. n-1 of a random parameter, `(n,)`, or `(n, 2)` angles θ, ψ
         (radians) from the joint's mean normal for `fisher`; row k does not depend on n."""
+        # scipy.stats behind these costs half a second to import: only a sweep needs it
+        # (the scene schema imports this module for the quantities' ranges)
+        from engine.analyses.jointstats import Distribution, fisher_angles_of
+        from engine.analyses.reliability import truncated_normal
+
         if self.distribution == "normal":
             lo, hi = sweep_truncation(self.quantity, self.low, self.high)
             return truncated_normal(self.mean, self.sd, n, self.entropy(seed), lo, hi)
@@ -291,6 +294,8 @@ def sweep_document(spec: SweepSpec, records: list[dict[str, Any]]) -> dict[str, 
     """Aggregate of the realisations done: by `spec.mode`, and by limit equilibrium over
     the same realisations when it applies to every one (`analytic_note` says why not);
     their PoF difference. The sensitivity is Spearman's ρ of FS and each parameter."""
+    from engine.analyses.reliability import aggregate
+
     inputs = sensitivity_inputs(records)
     fs = [r["factor_of_safety"] if r.get("status") == "completed" else None for r in records]
     fs_arr = np.array([np.nan if f is None else f for f in fs], float)
