@@ -6,8 +6,8 @@ F gives the factor of safety, eq. 52: `F_s = tan φ / tan φ_r`. Each trial star
 model settled under its loads and is judged by the watched blocks' displacement and
 velocity (:mod:`engine.analyses.trials`): it fails when a block moves beyond the
 displacement limit or keeps moving without slowing down, and holds (ending early) when
-every watched block is at rest on stuck contacts; a trial continues from the end of the
-trial that held at the largest factor below it (incremental reduction). Bolts, cables and
+every watched block is at rest on stuck contacts; every trial starts from the model's
+equilibrium at F = 1 when it has one (FLAC's and 3DEC's restore). Bolts, cables and
 water act in every trial exactly as in a run. The critical seismic coefficient bisects on
 kh with the same trials (the first settled under its own seismic load).
 """
@@ -109,14 +109,18 @@ def _trial(model: Model, factor: float, controls: StrengthReductionControls,
 
 
 class _Starts:
-    """Where a search's next trial starts: the end state of the trial that held, at rest,
-    at the largest value below it (incremental reduction), else the settled model."""
+    """Where a search's trials start: the model's own equilibrium, the end state of the
+    trial at `in_situ` (F = 1, the scene's strengths; kh = 0) when it held at rest, as
+    FLAC's and 3DEC's strength reduction restore the initial equilibrium for every trial;
+    else the model settled with joints that cannot fail. (Continuing each trial from the
+    last one that held instead lets a wedge's locked corners ratchet, trial after trial,
+    into a wedged state that holds up to 3 % beyond limit equilibrium.)"""
 
-    def __init__(self, settled: Settled | None, chain: bool = True) -> None:
+    def __init__(self, settled: Settled | None, in_situ: float, chain: bool = True) -> None:
         self.settled = settled
+        self.in_situ = in_situ
         self.best: Settled | None = None
-        #: whether trials continue from each other (not under a ground-motion history:
-        #: every trial feels it from its start)
+        #: not under a ground-motion history: every trial feels it from its start
         self.chain = chain
 
     def before(self, value: float) -> Settled | None:
@@ -125,14 +129,8 @@ class _Starts:
         return self.settled
 
     def held(self, end: Settled | None) -> None:
-        if not self.chain:
-            return
-        if end is not None and (self.best is None or end.factor > self.best.factor):
+        if self.chain and end is not None and end.factor == self.in_situ:
             self.best = end
-
-    def at(self, value: float) -> bool:
-        """Whether the trial at `value` left an equilibrium to continue from."""
-        return self.best is not None and self.best.factor == value
 
 
 #: a guided trial is placed this fraction of the tolerance from the estimate, either side
@@ -164,34 +162,17 @@ def estimate(runs: list[TrialRun], x_of: Callable[[float], float],
     return f_of(x0) if x0 != 0 else None
 
 
-def _upper(runs: list[TrialRun], lo: float) -> float | None:
-    """The smallest value above `lo` that a trial failed at (None: none)."""
-    above = [r.factor for r in runs if r.failed and r.factor > lo]
-    return min(above) if above else None
-
-
 def bracket(check: Callable[[float], bool], lo: float, hi: float,
             narrow: Callable[[float, float], bool], runs: list[TrialRun], max_runs: int,
-            guess: Callable[[], float | None], tolerance: float,
-            chained: Callable[[float], bool]) -> float:
+            guess: Callable[[], float | None], tolerance: float) -> float:
     """Narrow the bracket [lo (holds), hi (fails)] until `narrow(lo, hi)`; its midpoint.
     Each step tries just below and then just above the `guess()` (the failed trials'
     estimate, `GUIDE_OFFSET × tolerance` away relative: a trial that holds is short, one
     that fails near the answer runs its whole window, so two guided trials close a bracket
     bisection needs four or five for), or bisects when there is no guess or the last
-    guided trial disagreed with it. A narrow bracket whose failure did not continue from
-    the trial at `lo` (`chained(lo)`: it left an equilibrium to continue from) is tried
-    again from there, and widened upward if it now holds: the answer is the incremental
-    one. Every answer is a bracket the trials verified."""
+    guided trial disagreed with it. Every answer is a bracket the trials verified."""
     guided = True
-    while len(runs) < max_runs:
-        if narrow(lo, hi):
-            last = [r for r in runs if r.factor == hi][-1]
-            if last.continued_from == lo or not chained(lo) or check(hi):
-                break
-            lo, guided = hi, False  # it holds from lo's equilibrium: look above
-            hi = _upper(runs, lo) or lo * (1.0 + 4.0 * tolerance)
-            continue
+    while not narrow(lo, hi) and len(runs) < max_runs:
         g = guess() if guided else None
         margin = 0.01 * (hi - lo)
         if g is not None and lo + margin < g < hi - margin:
@@ -202,7 +183,7 @@ def bracket(check: Callable[[float], bool], lo: float, hi: float,
                 continue
             lo = below
             if narrow(lo, hi) or len(runs) >= max_runs:
-                continue
+                break
             if check(above):
                 hi = above
             else:
@@ -226,7 +207,7 @@ def factor_of_safety(
     [min_factor, max_factor] (a bound beyond them); QuasiStatic for a quasi-static model."""
     c = controls or StrengthReductionControls()
     start = start_of_trials(model, c)
-    starts = _Starts(start, chain=model.ground_motion is None)
+    starts = _Starts(start, 1.0, chain=model.ground_motion is None)
     runs: list[TrialRun] = []
 
     def check(f: float) -> bool:
@@ -249,7 +230,7 @@ def factor_of_safety(
 
     def narrow(lo: float, hi: float) -> FactorOfSafetyResult:
         return result(bracket(check, lo, hi, lambda a, b: (b - a) / a <= c.tolerance, runs,
-                              c.max_runs, guess, c.tolerance, starts.at))
+                              c.max_runs, guess, c.tolerance))
 
     f = min(max(1.0, c.min_factor), c.max_factor)
     if check(f):
@@ -320,7 +301,7 @@ def critical_seismic_coefficient(
     refuse_quasi_static(model, "the critical seismic coefficient")
     base = model.seismic or SeismicLoad()
     runs: list[TrialRun] = []
-    starts = _Starts(None, chain=model.ground_motion is None)
+    starts = _Starts(None, 0.0, chain=model.ground_motion is None)
 
     def check(kh: float) -> bool:
         m = seismic_model(model, kh, c.observation_time)
@@ -350,4 +331,4 @@ def critical_seismic_coefficient(
         hi = min(2.0 * hi, c.max_coefficient)
     return result(bracket(check, lo, hi, lambda a, b: b - a <= c.tolerance * b, runs,
                           c.max_runs, lambda: estimate(runs, lambda k: -k, lambda x: -x),
-                          c.tolerance, starts.at))
+                          c.tolerance))

@@ -9,11 +9,9 @@
    starts its trials from the scene as given, and the trial says so.
 2. **Release.** From the settled state the trial model (strengths divided by F, or the
    seismic load of the trial) runs in dynamic steps, for at most `observation_time` s. A
-   search continues each trial from the end of the trial that held, at rest, at the
-   largest factor below it (an equilibrium there), as incremental strength reduction
-   does: the step of strength it releases is small near the answer, so resistance that
-   builds up with displacement (bolts, the redistribution between a face's corners) is
-   mobilized with little overshoot instead of by a sudden drop from full strength.
+   search starts its trials from the model's own equilibrium, the end of the trial at
+   F = 1 (kh = 0) when it held at rest: resistance that builds up with displacement (a
+   bolt) is then mobilized by the step from F = 1, not by a drop from full strength.
 3. **Verdict**, with its reason:
 
    - *fails* as soon as a watched block's point has moved more than the displacement limit
