@@ -110,10 +110,11 @@ class StrengthReductionControls:
     """Settings of the factor-of-safety search (engine.analyses.strength_reduction).
 
     The model is first settled under its loads with joints that cannot fail; each trial
-    then divides the joints' strength by F and runs for at most `observation_time` s. A
-    trial fails when a watched block moves more than `displacement_limit` m (None:
-    :data:`DISPLACEMENT_LIMIT_RATIO` × the size V^⅓ of the smallest watched block) or is
-    still moving at the end without slowing down; it holds, and ends early, once every
+    (from the equilibrium at F = 1 when the model has one) divides the joints' strength by
+    F and runs for at most `observation_time` s. A trial fails when a watched block moves
+    more than `displacement_limit` m (None: :data:`DISPLACEMENT_LIMIT_RATIO` × the size
+    V^⅓ of the smallest watched block) or is still moving at the end without slowing
+    down; it holds, and ends early, once every
     watched block is at rest with every contact stuck. F is searched within
     `[min_factor, max_factor]`; bisection stops when the bracket is narrower than
     `tolerance` relative to F or after `max_runs` trials. The scene schema takes its
@@ -140,8 +141,8 @@ DISPLACEMENT_LIMIT_RATIO = 0.02
 class SeismicCoefficientControls:
     """Settings of the critical (yield) seismic coefficient search: bisection on kh (the
     scene's azimuth and kv kept, full strengths) with the trials of the factor of safety
-    (settled under the trial's load with joints that cannot fail, then released: fails
-    beyond `displacement_limit` m or still moving at `observation_time` s), up to
+    (from the equilibrium at kh = 0: fail beyond `displacement_limit` m or still moving at
+    `observation_time` s), up to
     `max_coefficient`; stops when the bracket is narrower than `tolerance` relative to kh or
     after `max_runs` trials."""
 

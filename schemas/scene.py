@@ -528,7 +528,7 @@ class FactorOfSafetySpec(_TrialSpec):
 class CriticalSeismicSpec(_TrialSpec):
     """Critical (yield) seismic coefficient: bisect on kh (the scene's `seismic` azimuth and
     kv kept, full joint strengths) for the kh at which the watched blocks fail (the trials
-    of `factor_of_safety`, each settled under its own kh)."""
+    of `factor_of_safety`, from the equilibrium at kh = 0)."""
 
     tolerance: Positive = Field(_KC.tolerance, description="stop when the kh bracket is "
                                                            "this narrow (relative)")

@@ -9,7 +9,7 @@ displacement limit or keeps moving without slowing down, and holds (ending early
 every watched block is at rest on stuck contacts; every trial starts from the model's
 equilibrium at F = 1 when it has one (FLAC's and 3DEC's restore). Bolts, cables and
 water act in every trial exactly as in a run. The critical seismic coefficient bisects on
-kh with the same trials (the first settled under its own seismic load).
+kh with the same trials (from the equilibrium at kh = 0).
 """
 
 from __future__ import annotations
@@ -295,8 +295,8 @@ def critical_seismic_coefficient(
     progress: Callable[[TrialRun], None] | None = None,
 ) -> SeismicCoefficientResult:
     """The smallest horizontal seismic coefficient kh at which the watched blocks fail, by
-    bisection on kh (the model's seismic azimuth and kv, full strengths); each trial is
-    settled under its own kh. QuasiStatic for a quasi-static model."""
+    bisection on kh (the model's seismic azimuth and kv, full strengths); each trial starts
+    from the equilibrium at kh = 0. QuasiStatic for a quasi-static model."""
     c = controls or SeismicCoefficientControls()
     refuse_quasi_static(model, "the critical seismic coefficient")
     base = model.seismic or SeismicLoad()

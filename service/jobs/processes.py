@@ -260,7 +260,7 @@ PROCESSES: dict[str, Process] = {p.id: p for p in (
     Process("critical-seismic-coefficient", "Critical seismic coefficient",
             "Find by bisection on the horizontal pseudo-static coefficient kh (the scene's "
             "seismic azimuth and kv, full joint strengths) the kh at which the watched blocks "
-            "fail (the trials of the factor of safety, each settled under its own kh; the "
+            "fail (the trials of the factor of safety, from the equilibrium at kh = 0; the "
             "scene's analysis.critical_seismic_coefficient).",
             ("seismic.json",), "seismic.json", "critical_seismic_coefficient",
             "critical_seismic_coefficient", _critical_seismic, check=_dynamic_trials),
