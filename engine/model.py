@@ -107,44 +107,51 @@ class AnalysisControls:
 
 @dataclass(frozen=True)
 class StrengthReductionControls:
-    """Settings of the factor-of-safety search.
+    """Settings of the factor-of-safety search (engine.analyses.strength_reduction).
 
-    Each trial runs `observation_time` s; it fails when the mean acceleration of the
-    fastest watched block point over `[window_start, observation_time]` s exceeds
-    `acceleration_threshold` (m/s²) (sustained acceleration, VALIDATION.md 2.3). F is
-    searched within `[min_factor, max_factor]`; bisection stops when the bracket is
-    narrower than `tolerance` relative to F or after `max_runs` trials. The scene schema
-    takes its defaults from here.
+    The model is first settled under its loads with joints that cannot fail; each trial
+    (from the equilibrium at F = 1 when the model has one) divides the joints' strength by
+    F and runs for at most `observation_time` s. A trial fails when a watched block moves
+    more than `displacement_limit` m (None: :data:`DISPLACEMENT_LIMIT_RATIO` × the size
+    V^⅓ of the smallest watched block) or is still moving at the end without slowing
+    down; it holds, and ends early, once every
+    watched block is at rest with every contact stuck. F is searched within
+    `[min_factor, max_factor]`; bisection stops when the bracket is narrower than
+    `tolerance` relative to F or after `max_runs` trials. The scene schema takes its
+    defaults from here.
     """
 
-    observation_time: float = 3.0
-    window_start: float = 1.0
-    acceleration_threshold: float = 0.01
+    observation_time: float = 1.0
+    displacement_limit: float | None = None
     tolerance: float = 0.005
     min_factor: float = 0.05
     max_factor: float = 20.0
     max_runs: int = 30
     #: joint materials whose strength is reduced (None: all)
     joint_materials: tuple[int, ...] | None = None
-    #: blocks whose acceleration decides failure (None: every block that is not fixed)
+    #: blocks whose motion decides failure (None: every block that is not fixed)
     watch_blocks: tuple[int, ...] | None = None
+
+
+#: a trial's default displacement limit as a fraction of the smallest watched block's size
+DISPLACEMENT_LIMIT_RATIO = 0.02
 
 
 @dataclass(frozen=True)
 class SeismicCoefficientControls:
     """Settings of the critical (yield) seismic coefficient search: bisection on kh (the
-    scene's azimuth and kv kept) with the strength-reduction trial criterion (sustained
-    acceleration of the watched blocks over `[window_start, observation_time]` s above
-    `acceleration_threshold` m/s²), up to `max_coefficient`; stops when the bracket is
-    narrower than `tolerance` relative to kh or after `max_runs` trials."""
+    scene's azimuth and kv kept, full strengths) with the trials of the factor of safety
+    (from the equilibrium at kh = 0: fail beyond `displacement_limit` m or still moving at
+    `observation_time` s), up to
+    `max_coefficient`; stops when the bracket is narrower than `tolerance` relative to kh or
+    after `max_runs` trials."""
 
-    observation_time: float = 3.0
-    window_start: float = 1.0
-    acceleration_threshold: float = 0.01
+    observation_time: float = 1.0
+    displacement_limit: float | None = None
     tolerance: float = 0.005
     max_coefficient: float = 1.0
     max_runs: int = 30
-    #: blocks whose acceleration decides failure (None: every block that is not fixed)
+    #: blocks whose motion decides failure (None: every block that is not fixed)
     watch_blocks: tuple[int, ...] | None = None
 
 

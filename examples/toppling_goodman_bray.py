@@ -102,8 +102,7 @@ def scene(setback: float = 0.0) -> dict:
             "duration": 3.0,
             "time_step": 0.001,
             "block_model": "rigid",
-            "factor_of_safety": {"tolerance": 0.005, "observation_time": 3.0,
-                                 "window_start": 1.0},
+            "factor_of_safety": {"tolerance": 0.005, "observation_time": 3.0},
         },
     }
 

@@ -217,6 +217,37 @@ def _domain(scene: Scene, p: Problems, base_dir: Path | None
     return Polyhedron.from_faces(d.polyhedron.vertices, d.polyhedron.faces), None
 
 
+#: the last few cuts, by the domain, the joint planes and the terrain's columns: the
+#: realisations of a sweep that vary strengths, water or loads cut the same blocks (and the
+#: blocks are immutable)
+_CUTS: dict[tuple[Any, ...], Any] = {}
+_CUTS_KEPT = 4
+
+
+def _shape_key(q: Polyhedron) -> tuple[bytes, bytes, bytes]:
+    return q.vertices.tobytes(), q.face_indptr.tobytes(), q.face_indices.tobytes()
+
+
+def _cut(domain: Polyhedron, planes: list[JointPlane], min_volume: float | None,
+         min_width: float | None, tiles: list[Polyhedron] | None = None) -> Any:
+    """`cut_blocks` of the domain by the planes, from the cache when cut before."""
+    from engine.geometry.cutting.cut import cut_blocks
+
+    key = (_shape_key(domain), min_volume, min_width,
+           tuple((pl.normal.tobytes(), pl.point.tobytes(), pl.tag,
+                  None if pl.extent is None else np.asarray(pl.extent).tobytes())
+                 for pl in planes),
+           None if tiles is None else tuple(_shape_key(t) for t in tiles))
+    hit = _CUTS.get(key)
+    if hit is None:
+        hit = cut_blocks(domain, planes, min_block_volume=min_volume,
+                         min_block_width=min_width, tiles=tiles)
+        if len(_CUTS) >= _CUTS_KEPT:
+            _CUTS.pop(next(iter(_CUTS)))
+        _CUTS[key] = hit
+    return hit
+
+
 def _cut_domain(scene: Scene, p: Problems, warnings: list[str], base_dir: Path | None = None
                 ) -> tuple[list[Polyhedron], list[str | None]]:
     """The blocks cut from the domain, sorted by centroid z, y, x (empty if no domain), and
@@ -249,10 +280,9 @@ def _cut_domain(scene: Scene, p: Problems, warnings: list[str], base_dir: Path |
             return [], []
         blocks = []
         for piece in pieces:
-            result = cut_blocks(piece, planes, min_block_volume=d.min_block_volume,
-                                min_block_width=d.min_block_width,
-                                tiles=tiles if tiles is not None else
-                                (_tiles(piece) if piece.pieces else None))
+            result = _cut(piece, planes, d.min_block_volume, d.min_block_width,
+                          tiles if tiles is not None else
+                          (_tiles(piece) if piece.pieces else None))
             for w in result.warnings:
                 w = _name_joints(w, scene)
                 if w not in warnings:
@@ -742,10 +772,11 @@ def build_model(scene: Scene | str | Path | dict[str, Any],
         weak = (range(len(jmat_names)) if spec.joint_materials is None
                 else [jmat_names.index(n) for n in spec.joint_materials])
         fos = StrengthReductionControls(
-            observation_time=spec.observation_time, window_start=spec.window_start,
-            acceleration_threshold=spec.acceleration_threshold, tolerance=spec.tolerance,
+            observation_time=spec.observation_time,
+            displacement_limit=spec.displacement_limit, tolerance=spec.tolerance,
             min_factor=spec.min_factor, max_factor=spec.max_factor, max_runs=spec.max_runs,
             joint_materials=tuple(sorted(set(weak))), watch_blocks=tuple(sorted(set(watch))))
+        warnings += spec.old_criterion("analysis.factor_of_safety")
     kc = None
     kspec = scene.analysis.critical_seismic_coefficient
     if kspec is None and scene.analysis.type == "critical_seismic_coefficient":
@@ -758,10 +789,11 @@ def build_model(scene: Scene | str | Path | dict[str, Any],
         if not watch:
             watch = [k for k, b in enumerate(blocks) if not b.fixed]
         kc = SeismicCoefficientControls(
-            observation_time=kspec.observation_time, window_start=kspec.window_start,
-            acceleration_threshold=kspec.acceleration_threshold, tolerance=kspec.tolerance,
+            observation_time=kspec.observation_time,
+            displacement_limit=kspec.displacement_limit, tolerance=kspec.tolerance,
             max_coefficient=kspec.max_coefficient, max_runs=kspec.max_runs,
             watch_blocks=tuple(sorted(set(watch))))
+        warnings += kspec.old_criterion("analysis.critical_seismic_coefficient")
     p.raise_if_any()
 
     warnings.extend(_oddities(scene, blocks, fixed_points))

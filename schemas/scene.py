@@ -26,6 +26,7 @@ from pydantic import (
 from engine.analyses.sweep import ANALYTIC_QUANTITIES, SWEEP_QUANTITIES, sweep_truncation
 from engine.model import (
     DEFAULT_FRICTION_ANGLE_DEG,
+    DISPLACEMENT_LIMIT_RATIO,
     AnalysisControls,
     JointMaterial,
     Material,
@@ -472,33 +473,51 @@ class GroundMotionSpec(_Model):
 # --------------------------------------------------------------------------- analysis
 
 
-class FactorOfSafetySpec(_Model):
-    """Strength reduction: bisect on F with tan φ_r = tan φ / F (cohesion and tension / F).
+#: what the old acceleration criterion's settings say now (accepted, not used)
+_OLD_CRITERION = ("no longer used (accepted for old scenes): trials are judged by the watched "
+                  "blocks' displacement and velocity (docs/factor-of-safety.md)")
 
-    A trial fails when the mean acceleration of the watched blocks over
-    [`window_start`, `observation_time`] s exceeds `acceleration_threshold` (VALIDATION.md
-    2.3). `averaging_start` is accepted as the old name of `window_start`.
-    """
+
+class _TrialSpec(_Model):
+    """How a trial of a bisection is judged (engine.analyses.trials): settled under its
+    loads with joints that cannot fail, then released for at most `observation_time` s; it
+    fails when a watched block moves more than `displacement_limit` or is still moving at
+    the end without slowing down, and holds (ending early) once every watched block is at
+    rest with every contact stuck."""
+
+    observation_time: Positive = Field(_FOS.observation_time,
+                                       description="s simulated per trial at most")
+    displacement_limit: Length | None = Field(
+        None, description="m; a trial whose watched block moves more fails (default: "
+                          f"{DISPLACEMENT_LIMIT_RATIO:g} × the size V^⅓ of the smallest "
+                          "watched block)")
+    window_start: NonNegative | None = Field(
+        None, description=_OLD_CRITERION,
+        validation_alias=AliasChoices("window_start", "averaging_start"))
+    acceleration_threshold: Positive | None = Field(None, description=_OLD_CRITERION)
+    max_runs: Annotated[int, Field(ge=1, le=1000)] = Field(_FOS.max_runs,
+                                                            description="trials at most")
+    watch: list[Target] = Field(
+        default_factory=list, description="blocks whose motion decides (default: all free)"
+    )
+
+    def old_criterion(self, loc: str) -> list[str]:
+        """Warnings for the settings of the old acceleration criterion given."""
+        return [f"{loc}.{name}: {_OLD_CRITERION}"
+                for name in ("window_start", "acceleration_threshold")
+                if getattr(self, name) is not None]
+
+
+class FactorOfSafetySpec(_TrialSpec):
+    """Strength reduction: bisect on F with tan φ_r = tan φ / F (cohesion and tension / F);
+    each trial as :class:`_TrialSpec` says."""
 
     tolerance: Positive = Field(_FOS.tolerance, description="stop when the F bracket is "
                                                             "this narrow (relative)")
     min_factor: Positive = Field(_FOS.min_factor, description="smallest F tried")
     max_factor: Positive = Field(_FOS.max_factor, description="largest F tried")
-    observation_time: Positive = Field(_FOS.observation_time, description="s simulated per "
-                                                                          "trial")
-    window_start: NonNegative = Field(
-        _FOS.window_start, description="s; start of the averaging window",
-        validation_alias=AliasChoices("window_start", "averaging_start"))
-    acceleration_threshold: Positive = Field(
-        _FOS.acceleration_threshold, description="m/s²; a trial whose watched blocks "
-                                                 "accelerate more on average fails")
-    max_runs: Annotated[int, Field(ge=1, le=1000)] = Field(_FOS.max_runs,
-                                                            description="trials at most")
     joint_materials: list[Name] | None = Field(
         None, description="joint materials to weaken (default: all)"
-    )
-    watch: list[Target] = Field(
-        default_factory=list, description="blocks whose motion decides (default: all free)"
     )
 
     @model_validator(mode="after")
@@ -508,53 +527,31 @@ class FactorOfSafetySpec(_Model):
                 f"max_factor ({fmt_num(self.max_factor)}) must exceed min_factor "
                 f"({fmt_num(self.min_factor)})"
             )
-        if self.window_start >= self.observation_time:
-            raise ValueError(
-                f"window_start ({fmt_num(self.window_start)} s) must be before "
-                f"observation_time ({fmt_num(self.observation_time)} s)"
-            )
         return self
 
 
-class CriticalSeismicSpec(_Model):
+class CriticalSeismicSpec(_TrialSpec):
     """Critical (yield) seismic coefficient: bisect on kh (the scene's `seismic` azimuth and
-    kv kept, full joint strengths) for the kh at which the watched blocks start to
-    accelerate (the trial criterion of `factor_of_safety`)."""
+    kv kept, full joint strengths) for the kh at which the watched blocks fail (the trials
+    of `factor_of_safety`, from the equilibrium at kh = 0)."""
 
     tolerance: Positive = Field(_KC.tolerance, description="stop when the kh bracket is "
                                                            "this narrow (relative)")
     max_coefficient: SeismicCoefficient = Field(_KC.max_coefficient,
                                                 description="largest kh tried, 0 to 5")
-    observation_time: Positive = Field(_KC.observation_time, description="s simulated per "
-                                                                         "trial")
-    window_start: NonNegative = Field(_KC.window_start,
-                                      description="s; start of the averaging window")
-    acceleration_threshold: Positive = Field(
-        _KC.acceleration_threshold, description="m/s²; a trial whose watched blocks "
-                                                "accelerate more on average fails")
-    max_runs: Annotated[int, Field(ge=1, le=1000)] = Field(_KC.max_runs,
-                                                            description="trials at most")
-    watch: list[Target] = Field(
-        default_factory=list, description="blocks whose motion decides (default: all free)"
-    )
 
     @model_validator(mode="after")
     def _consistent(self) -> CriticalSeismicSpec:
         if self.max_coefficient <= 0:
             raise ValueError("max_coefficient must be positive")
-        if self.window_start >= self.observation_time:
-            raise ValueError(
-                f"window_start ({fmt_num(self.window_start)} s) must be before "
-                f"observation_time ({fmt_num(self.observation_time)} s)"
-            )
         return self
 
 
 class AnalysisSpec(_Model):
     """How to run: time, contact penalties, integration mode, block model."""
 
-    type: Literal["simulation", "factor_of_safety", "critical_seismic_coefficient"] = (
-        "simulation")
+    type: Literal["simulation", "factor_of_safety", "critical_seismic_coefficient",
+                  "limit_equilibrium"] = "simulation"
     duration: Positive = Field(_CONTROLS.duration, description="s simulated")
     time_step: Positive = Field(_CONTROLS.time_step, description="s, initial time step")
     min_time_step: Positive = Field(_CONTROLS.min_time_step,
@@ -770,9 +767,10 @@ class MonteCarloSpec(_Model):
     """A sweep or Monte Carlo analysis (process `sweep`, `polydda sweep`): `n` realisations
     from `seed` of the scene's `parameters` (each from its own random stream, so realisation
     k is the same whatever n and whatever other parameters are added), each evaluated by
-    the engine's strength reduction (`dda`) or eq. 51 for a two-joint wedge (`analytic`:
-    friction_angle and joint_orientation only). `friction_angle: {mean, sd}` is the short
-    form of the parameter `friction_angle` normal on every weakened joint material."""
+    the engine's strength reduction (`dda`) or limit equilibrium (`analytic`: a planar
+    block or a two-plane wedge with everything the scene has; every parameter but the DDA's
+    penalty and time step). `friction_angle: {mean, sd}` is the short form of the
+    parameter `friction_angle` normal on every weakened joint material."""
 
     n: Annotated[int, Field(ge=1, le=10_000)] = Field(200, description="realisations")
     seed: Annotated[int, Field(ge=0)] = Field(0, description="random seed")
@@ -1119,8 +1117,8 @@ def scene_problems(scene: Scene) -> list[dict[str, str]]:
 
 
 def _sweep_problems(scene: Scene, p: Problems, joint_material: Any) -> None:
-    """What a sweep's parameters name must exist in the scene, and eq. 51 (mode
-    `analytic`) must cover them."""
+    """What a sweep's parameters name must exist in the scene, and limit equilibrium (mode
+    `analytic`) must have them."""
     joints = [scene.joint_name(k) for k in range(len(scene.joints))]
     bolts = [b.name or f"bolt{k + 1}" for k, b in enumerate(scene.bolts)]
     prefixes = [bp.name_prefix for bp in scene.bolt_patterns]
@@ -1140,8 +1138,8 @@ def _sweep_problems(scene: Scene, p: Problems, joint_material: Any) -> None:
         if q == "kh" and scene.seismic is None:
             p.add(loc, "kh needs 'seismic' with the azimuth the horizontal force points to")
         if scene.sweep.mode == "analytic" and q not in ANALYTIC_QUANTITIES:
-            p.add(loc, f"eq. 51 (mode 'analytic') covers only "
-                  f"{' and '.join(ANALYTIC_QUANTITIES)}, not {q}: use mode 'dda'")
+            p.add(loc, f"limit equilibrium (mode 'analytic') has no {q}: it is a setting "
+                  "of the DDA; use mode 'dda'")
 
 
 def explicit_size_problems(data: dict[str, Any]) -> list[dict[str, str]]:

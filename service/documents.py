@@ -25,6 +25,7 @@ from engine.jsonable import finite
 
 if TYPE_CHECKING:
     from engine.analyses.kinematics import KinematicResult
+    from engine.analyses.limit_equilibrium import LimitEquilibriumResult
     from engine.analyses.strength_reduction import (
         FactorOfSafetyResult,
         SeismicCoefficientControls,
@@ -277,10 +278,36 @@ def fos_controls(build: BuildResult) -> StrengthReductionControls:
     return build.factor_of_safety or StrengthReductionControls()
 
 
+def dynamic_trials(analysis: Any, what: str = "the factor of safety") -> None:
+    """SceneError (at `analysis.mode`) when a bisection of trials (factor of safety,
+    critical seismic coefficient) is asked of a quasi-static scene (`analysis`: the
+    scene's AnalysisSpec)."""
+    from engine.analyses.trials import quasi_static_reason
+    from schemas.errors import SceneError
+
+    reason = quasi_static_reason(analysis.dynamic_ratio_value, what)
+    if reason:
+        loc = "analysis.dynamic_ratio" if analysis.dynamic_ratio is not None else "analysis.mode"
+        raise SceneError([{"loc": loc, "msg": reason}])
+
+
+def _named_runs(runs: list[dict[str, Any]], build: BuildResult) -> list[dict[str, Any]]:
+    """Trials with the deciding block's name instead of its index."""
+    out = []
+    for r in runs:
+        r = dict(r)
+        b = r.get("block", -1)
+        r["block"] = build.block_names[b] if isinstance(b, int) and b >= 0 else None
+        out.append(r)
+    return out
+
+
 def fos_document(result: FactorOfSafetyResult, build: BuildResult) -> dict[str, Any]:
-    """The factor-of-safety answer: factor, critical friction angle(s), trials, status,
-    and the names of the joint materials weakened and the blocks watched."""
+    """The factor-of-safety answer: factor (or its bound), critical friction angle(s),
+    every trial with its displacement, velocity and the reason of its verdict, status, and
+    the names of the joint materials weakened and the blocks watched."""
     doc = result.as_dict()
+    doc["runs"] = _named_runs(doc["runs"], build)
     c = fos_controls(build)
     jm = c.joint_materials if c.joint_materials is not None else range(
         len(build.joint_material_names))
@@ -307,11 +334,85 @@ def seismic_controls(build: BuildResult) -> SeismicCoefficientControls:
 
 def seismic_document(result: SeismicCoefficientResult, build: BuildResult) -> dict[str, Any]:
     """The critical seismic coefficient answer: kh, azimuth (deg), kv, trials (kh tried,
-    verdict, mean acceleration m/s²), status, and the names of the blocks watched."""
+    verdict and its reason, displacement, velocity), status, and the blocks watched."""
     doc = result.as_dict()
+    doc["runs"] = _named_runs(doc["runs"], build)
     doc["watch_blocks"] = _watched_names(build, seismic_controls(build).watch_blocks)
     doc["warnings"] = list(build.warnings)
     return finite(doc)
+# --------------------------------------------------------------------------- limit equilibrium
+
+
+def le_result(build: BuildResult) -> LimitEquilibriumResult:
+    """Limit equilibrium of the scene's one free block (the vector method; the joint
+    materials the scene's factor of safety weakens give its strength-reduction factor);
+    SceneError naming why when it does not apply."""
+    from engine.analyses.limit_equilibrium import NotApplicable, limit_equilibrium
+    from schemas.errors import SceneError
+
+    c = fos_controls(build)
+    try:
+        return limit_equilibrium(build.model, c.joint_materials, c.watch_blocks)
+    except NotApplicable as exc:
+        raise SceneError([{"loc": "limit equilibrium", "msg": str(exc)}]) from None
+
+
+def le_plane_names(result: LimitEquilibriumResult, build: BuildResult) -> list[str]:
+    """A name for each plane the block rests on: its joint's, else the block it is
+    against's ("on B2"); repeated names numbered."""
+    names = []
+    for pl in result.loads.planes:
+        tag = pl.face_tag
+        names.append(build.joint_names[tag] if 0 <= tag < len(build.joint_names)
+                     else f"on {build.block_names[pl.block]}")
+    seen: dict[str, int] = {}
+    for k, n in enumerate(names):
+        if names.count(n) > 1:
+            seen[n] = seen.get(n, 0) + 1
+            names[k] = f"{n} ({seen[n]})"
+    return names
+
+
+def le_document(result: LimitEquilibriumResult, build: BuildResult) -> dict[str, Any]:
+    """The limit-equilibrium answer: factor of safety, strength-reduction factor, mode,
+    sliding planes and direction, each plane (joint material, area, normal force, water),
+    every force, the modes tried, notes and warnings."""
+    doc = result.as_dict(le_plane_names(result, build), build.block_names)
+    for d, pl in zip(doc["planes"], result.loads.planes, strict=True):
+        d["joint_material"] = build.joint_material_names[pl.joint_material]
+    doc["warnings"] = list(build.warnings)
+    return finite(doc)
+
+
+def le_text(doc: dict[str, Any]) -> str:
+    """A few lines: the factor of safety and mode, the planes, the forces, the notes."""
+    fs = doc["factor_of_safety"]
+    srf = doc["strength_reduction_factor"]
+    lines = [f"limit equilibrium of {doc['block']}: factor of safety "
+             f"{'unbounded (nothing drives it)' if fs is None else f'{fs:.4f}'}, "
+             f"{doc['mode']}" + (f" ({', '.join(doc['sliding_planes'])})"
+                                 if doc["sliding_planes"] else "")]
+    if srf is not None and (fs is None or abs(srf - fs) > 1e-9 * abs(fs)):
+        lines.append(f"strength-reduction factor {srf:.4f} (passive bolts in the driving "
+                     "force: what `polydda fos` finds)")
+    if doc["direction"]:
+        d = doc["direction"]
+        lines.append(f"direction: trend {d['trend']:.2f}°, plunge {d['plunge']:.2f}°; "
+                     f"driving {doc['driving_force']:.6g} N, resisting "
+                     f"{doc['resisting_force']:.6g} N")
+    for p in doc["planes"]:
+        n = p["normal_force"]
+        lines.append(f"  {p['name']} {p['dip']:.1f}/{p['dip_direction']:05.1f}: "
+                     f"{'slides, N ' + format(n, '.6g') + ' N' if n is not None else 'free'}"
+                     f"; area {p['area']:.4g} m², φ {p['friction_angle']:.4g}°, "
+                     f"c {p['cohesion']:.6g} Pa, water {p['water_force']:.6g} N")
+    for f in doc["forces"]:
+        lines.append(f"  {f['kind'].replace('_', ' ')} ({f['name']}): "
+                     f"[{', '.join(f'{x:.6g}' for x in f['vector'])}] N")
+    lines += [f"note: {n}" for n in doc["notes"]]
+    return "\n".join(lines)
+
+
 # --------------------------------------------------------------------------- kinematics
 
 

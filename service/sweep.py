@@ -10,15 +10,16 @@ friction-only sweeps always did), so realisation k is the same whatever N and ad
 parameter leaves the others' draws as they were. A realisation is the scene with its values
 written in (:func:`realisation_scene`; an orientation re-cuts the blocks), evaluated by the
 engine's strength reduction (`dda`:
-:func:`engine.analyses.strength_reduction.factor_of_safety`) or by the analytic wedge
-(`analytic`: eq. 51 on the scene's two joints; friction and orientation only), and written
+:func:`engine.analyses.strength_reduction.factor_of_safety`) or by limit equilibrium
+(`analytic`: :mod:`engine.analyses.limit_equilibrium`, a planar block or a two-plane wedge
+with everything the scene has, or refused saying why), and written
 to `OUT/realisations/NNNNN.json` (or, for the service's jobs, to a folder shared by every
 job of the same sweep) as soon as it is done; a re-run with the same scene and spec skips
 those already there. A spec may cover a share of the N (`only`): jobs run shares and
 :func:`merge_documents` joins them. The aggregate (probability of failure, histogram, CDF,
 sensitivity to each parameter; engine.analyses.reliability) goes to `OUT/sweep.json`, beside
-the analytic sweep of the same realisations when the scene is a two-joint wedge and every
-parameter is one eq. 51 takes. """
+limit equilibrium's of the same realisations when it applies to every one (in mode `dda`
+its strength-reduction factor, the engine's definition). """
 
 from __future__ import annotations
 
@@ -35,14 +36,12 @@ import numpy as np
 
 from engine.analyses.jointstats import scatter_about
 from engine.analyses.kinematics import normal
-from engine.analyses.reliability import wedge_factor_of_safety, wedge_geometry
 from engine.analyses.sweep import (
     LEGACY_NAME,
     Parameter,
     SweepSpec,
     sweep_document,
 )
-from engine.model import DEFAULT_FRICTION_ANGLE_DEG
 from schemas.scene import SweepParameterSpec
 from service.documents import finite, write_json_atomic
 
@@ -139,31 +138,43 @@ def realisation_scene(scene: dict[str, Any], values: float | Mapping[str, Any],
     return _apply(scene, parameters or (), values)[0]
 
 
-def _joint_friction(scene: dict[str, Any], joint: dict[str, Any]) -> float:
-    """The friction angle (degrees) of a joint's joint material in a scene dict."""
-    mats = scene.get("joint_materials") or {}
-    name = joint.get("joint_material") or scene.get("default_joint_material") or (
-        next(iter(mats)) if len(mats) == 1 else None)
-    return float((mats.get(name) or {}).get("friction_angle", DEFAULT_FRICTION_ANGLE_DEG))
+def _with_friction(scene: dict[str, Any], friction_angle: float) -> dict[str, Any]:
+    """The scene with `friction_angle` (degrees) on every weakened joint material."""
+    return realisation_scene(scene, friction_angle)
+
+
+def limit_equilibrium_of(build: Any) -> tuple[float | None, float | None, str | None]:
+    """The limit-equilibrium factor of safety (Hoek & Bray's convention) and
+    strength-reduction factor of a built realisation, or (None, None, why it does not
+    apply); an unbounded factor (nothing drives the block) is None with its note."""
+    from schemas.errors import SceneError
+    from service.documents import le_result
+
+    try:
+        r = le_result(build)
+    except SceneError as exc:
+        return None, None, "; ".join(p["msg"] for p in exc.problems)
+    if not np.isfinite(r.factor_of_safety):
+        return None, None, "no force drives the block: its factor of safety is unbounded"
+    srf = r.strength_reduction_factor
+    return float(r.factor_of_safety), float(srf) if np.isfinite(srf) else None, None
 
 
 def analytic_fs(scene: dict[str, Any], friction_angle: float | None = None) -> float | None:
-    """Eq. 51 for a scene of exactly two joints (the wedge on their intersection), else
-    None; with `friction_angle` on both planes, else each plane's own; cohesion, water and
-    loads are ignored (as in eq. 51)."""
-    joints = scene.get("joints") or []
-    if len(joints) != 2:
-        return None
-    a, b = joints
-    try:
-        g = wedge_geometry(a["dip"], a["dip_direction"], b["dip"], b["dip_direction"])
-    except ValueError:  # parallel planes
-        return None
-    if not 0 < g.plunge < 90 or min(g.n_a, g.n_b) < 0:
-        return None  # a horizontal intersection, or a wedge that lifts off a plane
+    """The limit-equilibrium factor of safety of a scene (engine.analyses.limit_equilibrium:
+    the vector method with everything the scene has: cohesion, water, bolts, seismic load,
+    point loads), with `friction_angle` (degrees) on every weakened joint material when
+    given; None when limit equilibrium does not apply or the scene is invalid."""
+    from schemas.convert import build_model
+    from schemas.errors import SceneError
+
     if friction_angle is not None:
-        return float(wedge_factor_of_safety(g, friction_angle))
-    return float(wedge_factor_of_safety(g, _joint_friction(scene, a), _joint_friction(scene, b)))
+        scene = _with_friction(scene, friction_angle)
+    try:
+        build = build_model(scene)
+    except SceneError:
+        return None
+    return limit_equilibrium_of(build)[0]
 
 
 class Stopped(Exception):
@@ -187,14 +198,10 @@ def spec_of_scene(scene: dict[str, Any]) -> SweepSpec:
                      tuple(parameter_of(name, p) for name, p in s.parameters.items()))
 
 
-def dda_fs(scene: dict[str, Any],
-           should_stop: Callable[[], bool] | None = None) -> dict[str, Any]:
-    """The engine's factor of safety of a realisation's scene (strength reduction);
-    Stopped between trials once `should_stop()`. A realisation whose values make the scene
-    invalid (e.g. a pretension above the capacity) is recorded with the problem, no FS."""
-    from engine.analyses.strength_reduction import TrialRun, factor_of_safety
-    from schemas.convert import build_model
-    from schemas.errors import SceneError
+def dda_fs(build: Any, should_stop: Callable[[], bool] | None = None) -> dict[str, Any]:
+    """The engine's factor of safety of a realisation's built scene (strength reduction);
+    Stopped between trials once `should_stop()`."""
+    from engine.analyses.strength_reduction import QuasiStatic, TrialRun, factor_of_safety
     from service.documents import fos_controls
 
     def check(_: TrialRun) -> None:
@@ -203,34 +210,47 @@ def dda_fs(scene: dict[str, Any],
 
     start = time.perf_counter()
     try:
-        build = build_model(scene)
-    except SceneError as exc:
-        return {"factor_of_safety": None, "status": "invalid scene",
-                "message": "; ".join(exc.lines()), "trials": 0,
-                "wall_time": time.perf_counter() - start}
-    res = factor_of_safety(build.model, fos_controls(build), progress=check)
+        res = factor_of_safety(build.model, fos_controls(build), progress=check)
+    except QuasiStatic as exc:
+        return {"factor_of_safety": None, "status": "refused", "message": str(exc),
+                "trials": 0, "wall_time": time.perf_counter() - start}
     return {"factor_of_safety": res.factor_of_safety, "status": res.status,
-            "trials": len(res.runs), "message": res.message,
+            "bound": res.bound, "trials": len(res.runs), "message": res.message,
             "wall_time": time.perf_counter() - start}
 
 
 def evaluate(scene: dict[str, Any], spec: SweepSpec, index: int, values: Mapping[str, Any],
              should_stop: Callable[[], bool] | None = None) -> dict[str, Any]:
     """One realisation's record: index, its parameters' values (and φ as before when the
-    sweep has `friction_angle`), its factor of safety (by the spec's mode) and eq. 51's
-    (None when eq. 51 does not take every parameter into account)."""
+    sweep has `friction_angle`), its factor of safety by the spec's mode, and limit
+    equilibrium's (`analytic_fs`, everything the scene has counted; in mode `dda` the
+    strength-reduction factor, the same definition as the engine's; None with
+    `analytic_note` saying why when limit equilibrium does not apply). A realisation whose
+    values make the scene invalid (e.g. a pretension above the capacity) is recorded with
+    the problem, no FS."""
+    from schemas.convert import build_model
+    from schemas.errors import SceneError
+
     scene_k, recorded = _apply(scene, spec.all_parameters(), values)
     rec: dict[str, Any] = {"index": index, "parameters": recorded}
     if LEGACY_NAME in recorded:
         rec["friction_angle"] = recorded[LEGACY_NAME]
-    rec["analytic_fs"] = analytic_fs(scene_k) if spec.analytic_applies() else None
+    start = time.perf_counter()
+    try:
+        build = build_model(scene_k)
+    except SceneError as exc:
+        return rec | {"analytic_fs": None, "factor_of_safety": None,
+                      "status": "invalid scene", "message": "; ".join(exc.lines()),
+                      "trials": 0, "wall_time": time.perf_counter() - start}
+    fs, srf, why = limit_equilibrium_of(build)
+    rec["analytic_fs"] = fs if spec.mode == "analytic" else srf
+    if why is not None:
+        rec["analytic_note"] = why
     if spec.mode == "analytic":
-        rec |= {"factor_of_safety": rec["analytic_fs"],
-                "status": "completed" if rec["analytic_fs"] is not None
-                else "not a two-joint wedge (eq. 51 does not apply)"}
-    else:
-        rec |= dda_fs(scene_k, should_stop)
-    return rec
+        return rec | {"factor_of_safety": fs,
+                      "status": "completed" if fs is not None else
+                      f"limit equilibrium does not apply: {why}"}
+    return rec | dda_fs(build, should_stop)
 
 
 def _row(draws: Mapping[str, np.ndarray], k: int) -> dict[str, Any]:

@@ -53,8 +53,7 @@ def test_wedge_slides_along_line_of_intersection(phi: float) -> None:
 def test_factor_of_safety_of_block_on_incline() -> None:
     """FS = tan φ / tan α = 1.2128 for φ = 35° on 30°, within 2 %."""
     model = incline_model(35.0, duration=1.0, dt=5e-3)
-    controls = StrengthReductionControls(observation_time=1.2, window_start=0.4,
-                                         tolerance=0.01)
+    controls = StrengthReductionControls(observation_time=1.2, tolerance=0.01)
     res = factor_of_safety(model, controls)
     expected = np.tan(np.radians(35)) / np.tan(np.radians(30))
     assert res.factor_of_safety == pytest.approx(expected, rel=0.02)

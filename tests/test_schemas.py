@@ -129,10 +129,17 @@ def test_factor_of_safety_settings() -> None:
     assert (fos.tolerance, fos.joint_materials, fos.watch_blocks) == (0.005, (0,), (1,))
     scene["analysis"]["factor_of_safety"] = {"min_factor": 3, "max_factor": 2}
     assert_problem(scene, "analysis.factor_of_safety: max_factor (2) must exceed min_factor")
-    # the old name of the window's start is still read
-    scene["analysis"]["factor_of_safety"] = {"averaging_start": 0.5, "observation_time": 2}
-    fos = build_model(scene).factor_of_safety
-    assert (fos.window_start, fos.observation_time) == (0.5, 2.0)
+    # the old acceleration criterion's settings (and the window's old name) are still read,
+    # and said to be unused
+    scene["analysis"]["factor_of_safety"] = {"averaging_start": 0.5, "observation_time": 2,
+                                             "acceleration_threshold": 0.02,
+                                             "displacement_limit": 0.05}
+    built = build_model(scene)
+    fos = built.factor_of_safety
+    assert (fos.observation_time, fos.displacement_limit) == (2.0, 0.05)
+    assert [w.split(":")[0] for w in built.warnings] == [
+        "analysis.factor_of_safety.window_start",
+        "analysis.factor_of_safety.acceleration_threshold"]
 
 
 def test_scene_defaults_are_the_engines(cube_on_base: dict) -> None:

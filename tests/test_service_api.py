@@ -61,8 +61,8 @@ def test_processes_are_listed_with_their_input_schema(client: TestClient) -> Non
     r = client.get("/processes")
     assert r.status_code == 200
     assert {p["id"] for p in r.json()["processes"]} == {
-        "simulation", "factor-of-safety", "critical-seismic-coefficient", "block-cutting",
-        "kinematics", "sweep"}
+        "simulation", "factor-of-safety", "critical-seismic-coefficient", "limit-equilibrium",
+        "block-cutting", "kinematics", "sweep"}
     doc = client.get("/processes/simulation").json()
     schema = doc["inputs"]["scene"]["schema"]
     assert schema["title"] == "PolyDDA scene" and "blocks" in schema["properties"]

@@ -40,15 +40,16 @@ def two_cubes_fos_scene() -> dict[str, Any]:
     scene["block_pairs"] = [{"blocks": ["lower", "slab"], "joint_material": "smooth"}]
     scene["analysis"] = {
         "type": "factor_of_safety", "time_step": 0.005, "penalty": 1e10,
-        "factor_of_safety": {"observation_time": 0.6, "averaging_start": 0.2,
-                             "tolerance": 0.02, "min_factor": 0.5, "max_factor": 3.0,
-                             "joint_materials": ["rough"], "watch": ["cube"]}}
+        "factor_of_safety": {"observation_time": 0.6, "tolerance": 0.02, "min_factor": 0.5,
+                             "max_factor": 3.0, "joint_materials": ["rough"],
+                             "watch": ["cube"]}}
     return scene
 
 
 def test_process_registry_is_the_one_list() -> None:
     assert PROCESS_IDS == ("simulation", "factor-of-safety", "critical-seismic-coefficient",
-                           "block-cutting", "kinematics", "sweep")
+                           "limit-equilibrium", "block-cutting", "kinematics", "sweep")
+    assert default_process("limit_equilibrium") == "limit-equilibrium"
     assert default_process("factor_of_safety") == "factor-of-safety"
     assert default_process("critical_seismic_coefficient") == "critical-seismic-coefficient"
     assert default_process("simulation") == "simulation"
@@ -61,7 +62,7 @@ def test_fos_controls_carry_watched_blocks_and_joint_materials() -> None:
     c = fos_controls(build)
     assert c.watch_blocks == (build.block_index("cube"),)
     assert c.joint_materials == (build.joint_material_names.index("rough"),)
-    assert (c.observation_time, c.window_start, c.tolerance) == (0.6, 0.2, 0.02)
+    assert (c.observation_time, c.tolerance) == (0.6, 0.02)
 
 
 def test_fos_job_equals_the_cli(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:

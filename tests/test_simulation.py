@@ -351,14 +351,17 @@ def test_energy_is_accounted_for(case: str) -> None:
         assert e["numerical_dissipation"] + e["damping_dissipation"] > 0.9 * work
 
 
-@pytest.mark.parametrize(("cohesion", "holds"), [(12000.0, True), (3000.0, False)])
+@pytest.mark.parametrize(("cohesion", "holds"),
+                         [(12000.0, True), (6000.0, True), (3000.0, False)])
 def test_cohesion_holds_block_on_incline_until_it_breaks(cohesion: float, holds: bool) -> None:
-    """φ = 20° on 30°, cohesion c on the 1 m² base (a quarter to each corner contact).
+    """φ = 20° on 30°, cohesion c on the 1 m² base, carried by the base's four corner
+    contacts as one bond (a patch, engine.contact.patches).
 
-    A rigid-plastic bond would hold for c > 4713 Pa; with the bond at four point contacts
-    the up-slope corners (less normal force) fail first, so the static threshold is
-    c > 9352 Pa: c = 12 000 Pa holds (quasi-static), c = 3 000 Pa breaks at once and the
-    block slides on residual friction."""
+    The bond holds while W sin α ≤ W cos α tan φ + c A: W = 25 506 N, so 12 753 N ≤
+    8 040 N + c · 1 m², c ≥ 4 713 Pa (limit equilibrium). c = 6 000 and 12 000 Pa hold
+    (quasi-static: no start transient); c = 3 000 Pa breaks at once and the block slides on
+    residual friction. (With the bond split over the corners, the up-slope ones, with less
+    normal force, broke first and 6 000 Pa failed: the threshold was 9 352 Pa.)"""
     model = incline_model(20.0, duration=0.5, dynamic_ratio=0.0 if holds else 1.0)
     model.joint_materials = [JointMaterial(np.radians(20.0), cohesion=cohesion)]
     res = run(model)

@@ -155,6 +155,10 @@ def test_contact_loads_are_the_penalty_forces_of_each_mode() -> None:
     assert np.all(fric[mode != SLIDING] == 0)
 
 
+#: contacts in no face-to-face patch (the kernels' `patch` argument)
+NO_PATCH = np.full(4, -1, dtype=np.int64)
+
+
 def test_update_modes_follows_table_2() -> None:
     """A closed contact pulled apart opens; a locked one whose shear beats friction slides;
     an open one that penetrates past the hysteresis closes; a sliding one whose slip
@@ -167,7 +171,8 @@ def test_update_modes_follows_table_2() -> None:
     z3, z = np.zeros((4, 3)), np.zeros(4)
     out = update_modes(d0, normal, dr, z3, z3.copy(), mode, tangent, np.zeros(4, bool),
                        np.zeros(4, np.int64), np.zeros(4, np.int64), np.full(4, 0.5), z, z,
-                       np.full(4, 5e3), z3, 1e9, 1e9, z.copy(), 1e-3, 1e-7, z.copy(), 2, 2)
+                       np.full(4, 5e3), z3, 1e9, 1e9, z.copy(), 1e-3, 1e-7, z.copy(), 2, 2,
+                       NO_PATCH[:4], 0)
     new_mode, nstar, d1, fn, changed = out[0], out[2], out[3], out[6], out[7]
     assert list(new_mode) == [OPEN, SLIDING, LOCKED, LOCKED]
     np.testing.assert_allclose(d1, d0 + dr[:, 2])
@@ -190,7 +195,8 @@ def test_exactly_touching_faces_do_not_flip_on_round_off() -> None:
         out = update_modes(d0, normal, dr, z3, z3.copy(), np.array([LOCKED, OPEN], np.int8),
                            np.zeros((2, 3)), np.ones(2, bool), np.zeros(2, np.int64),
                            np.zeros(2, np.int64), np.full(2, 0.5), z, z, z.copy(), z3, 1e9,
-                           1e9, z.copy(), 1e-3, 0.0, np.full(2, resolution), 2, 2)
+                           1e9, z.copy(), 1e-3, 0.0, np.full(2, resolution), 2, 2,
+                           NO_PATCH[:2], 0)
         return list(out[0])
 
     assert modes(1e-20, 1e-11) == [LOCKED, OPEN]
@@ -209,11 +215,33 @@ def test_a_contact_past_the_switch_cap_is_held_at_its_friction_limit() -> None:
     out = update_modes(d0, normal, dr, z3, offset, np.array([LOCKED], np.int8),
                        np.array([[1.0, 0, 0]]), np.zeros(1, bool), np.zeros(1, np.int64),
                        np.full(1, 2, np.int64), np.full(1, 0.5), z, z, z.copy(), z3, 1e9,
-                       1e9, z.copy(), 1e-3, 0.0, z.copy(), 2, 2)
+                       1e9, z.copy(), 1e-3, 0.0, z.copy(), 2, 2, NO_PATCH[:1], 0)
     assert out[0][0] == LOCKED
     stretch = offset[0] + dr[0]  # N = 1e9 × 1e-5 = 1e4 N, friction 5e3 N
     assert 1e9 * stretch[0] == pytest.approx(5e3)
     assert out[10][0] == pytest.approx(1e-3 - 5e-6)
+
+
+@pytest.mark.parametrize(("cohesion", "slides"), [(2000.0, False), (800.0, True)])
+def test_a_bonded_patch_slips_as_a_whole(cohesion: float, slides: bool) -> None:
+    """Four locked contacts of one patch (N = 1e4, 1e4, 2e3, 2e3 N; tan φ 0.5; each
+    sheared by 4e3 N, 1.6e4 N in all) and cohesion c·A shared equally: the patch holds
+    while 1.6e4 ≤ 0.5 × 2.4e4 + c·A, i.e. c·A ≥ 4e3 N. With c·A = 8e3 N every contact stays
+    locked (the light ones carry more than their own 1e3 + 2e3 N); with 3.2e3 N the whole
+    bond breaks and the contacts whose shear beats their friction alone slide."""
+    normal = np.tile([0.0, 0.0, 1.0], (4, 1))
+    d0 = np.array([-1e-5, -1e-5, -2e-6, -2e-6])
+    dr = np.tile([4e-6, 0.0, 0.0], (4, 1))  # ks 1e9: 4e3 N of shear each
+    z3, z = np.zeros((4, 3)), np.zeros(4)
+    broken = np.zeros(4, bool)
+    out = update_modes(d0, normal, dr, z3, z3.copy(), np.full(4, LOCKED, np.int8),
+                       z3.copy(), broken, np.zeros(4, np.int64), np.zeros(4, np.int64),
+                       np.full(4, 0.5), z, np.full(4, cohesion), z.copy(), z3, 1e9, 1e9,
+                       z.copy(), 1e-3, 0.0, z.copy(), 2, 2, np.zeros(4, np.int64), 1)
+    if slides:
+        assert list(out[0]) == [LOCKED, LOCKED, SLIDING, SLIDING] and broken.all()
+    else:
+        assert list(out[0]) == [LOCKED] * 4 and not broken.any()
 
 
 def test_reseat_loss_books_what_springs_lost_between_steps_not_gains() -> None:
@@ -242,7 +270,7 @@ def test_a_parting_contact_loses_its_dashpot_not_its_spring() -> None:
     out = update_modes(d0, normal, dr, z3, z3.copy(), np.array([LOCKED], np.int8),
                        np.array([[1.0, 0, 0]]), np.zeros(1, bool), np.zeros(1, np.int64),
                        np.zeros(1, np.int64), np.full(1, 0.5), z, z, z.copy(), z3, 1e9, 1e9,
-                       cn, 1e-3, 0.0, z.copy(), 2, 2)
+                       cn, 1e-3, 0.0, z.copy(), 2, 2, NO_PATCH[:1], 0)
     assert out[0][0] == LOCKED
     assert cn[0] == 0.0
     assert out[6][0] == pytest.approx(1e9 * 1e-5)

@@ -15,6 +15,7 @@ import pytest
 from scipy import stats
 
 from engine.analyses.kinematics import normal
+from engine.analyses.reliability import wedge_factor_of_safety, wedge_geometry
 from engine.analyses.sweep import Parameter, SweepSpec
 from schemas.convert import build_model
 from schemas.errors import SceneError
@@ -211,8 +212,9 @@ def test_an_invalid_realisation_is_recorded_not_raised() -> None:
      "sweep.parameters.kh", "needs 'seismic'"),
     ({"parameters": {"bolt_pretension": {"distribution": "values", "values": [1e4]}}},
      "sweep.parameters.bolt_pretension", "has none"),
-    ({"mode": "analytic", "parameters": {"cohesion": COHESION}},
-     "sweep.parameters.cohesion", "eq. 51"),
+    ({"mode": "analytic", "parameters": {"penalty": {"distribution": "values",
+                                                     "values": [1e9]}}},
+     "sweep.parameters.penalty", "limit equilibrium (mode 'analytic') has no penalty"),
     ({"parameters": {"friction_angle": {"distribution": "uniform", "low": 10, "high": 95}}},
      "sweep.parameters.friction_angle", "outside the range"),
     ({"parameters": {"J1": {**J1, "distribution": "normal", "mean": 1, "sd": 1}}},
@@ -259,11 +261,12 @@ def test_api_refuses_an_invalid_sweep_with_422_naming_the_field(tmp_path: Path) 
 
 
 def test_rerun_with_several_parameters_skips_the_done(tmp_path: Path) -> None:
-    """Eq. 51 over φ and J1's orientation: a re-run evaluates only the missing
+    """Limit equilibrium over φ and J1's orientation: a re-run evaluates only the missing
     realisations and gives the same document; the realisation files are keyed by every
     parameter's values (another κ is another population, refused in the same folder,
-    even when the spec does not come from the scene); FS matches eq. 51 of each
-    realisation's recorded φ and J1; FS grows with φ (Spearman ρ > 0.5)."""
+    even when the spec does not come from the scene); FS of each realisation (the vector
+    method on the blocks cut with the turned joint) matches eq. 51 of its recorded φ and J1
+    (dry, friction only: the two are the same formula); FS grows with φ (ρ > 0.5)."""
     scene = example("wedge", n=40, seed=SEED, mode="analytic",
                     parameters={"friction_angle": FRICTION, "J1": J1})
     spec = spec_of_scene(scene)
@@ -280,11 +283,19 @@ def test_rerun_with_several_parameters_skips_the_done(tmp_path: Path) -> None:
         friction_angle=FRICTION, J1={**J1, "kappa": 20}))
     with pytest.raises(ValueError, match="another scene or spec"):
         run_sweep(bare, wider, tmp_path / "b")
-    for rec in first["realisations"][:5]:
-        s = json.loads(json.dumps(bare))
-        s["joint_materials"]["joint"]["friction_angle"] = rec["parameters"]["friction_angle"]
-        s["joints"][0] |= rec["parameters"]["J1"]
-        assert rec["factor_of_safety"] == pytest.approx(analytic_fs(s), rel=1e-12)
+    j2 = bare["joints"][1]
+    # a turned J1 whose extent (the wedge's face, turned with it) no longer meets J2 cuts no
+    # free block: limit equilibrium refuses that realisation, saying so (17 of the 40),
+    # where eq. 51 of the two orientations gave a number for a wedge the scene does not have
+    refused = [r for r in first["realisations"] if r["factor_of_safety"] is None]
+    assert refused and all("no free block" in r["analytic_note"] for r in refused)
+    assert "no free block" in first["analytic_note"]
+    assert first["analytic"]["n"] == 40 - len(refused) >= 20
+    for rec in [r for r in first["realisations"] if r["factor_of_safety"] is not None][:5]:
+        j1 = rec["parameters"]["J1"]
+        g = wedge_geometry(j1["dip"], j1["dip_direction"], j2["dip"], j2["dip_direction"])
+        eq51 = float(wedge_factor_of_safety(g, rec["parameters"]["friction_angle"]))
+        assert rec["factor_of_safety"] == pytest.approx(eq51, rel=1e-4)
         assert rec["friction_angle"] == rec["parameters"]["friction_angle"]
     sens = first["analytic"]["sensitivity"]
     assert set(sens) == {"friction_angle", "J1.dip", "J1.dip_direction"}
@@ -295,8 +306,8 @@ def test_rerun_with_several_parameters_skips_the_done(tmp_path: Path) -> None:
 def test_dda_sweep_of_kh_follows_the_pseudo_static_formula(tmp_path: Path) -> None:
     """The cube on the 30° slab (φ 40°) for kh = 0, 0.05 and 0.1 by the engine's strength
     reduction: FS within 1 % of (cos α − kh sin α) tan φ / (sin α + kh cos α) (1.4534 to
-    1.1673); eq. 51 does not apply (no wedge), so no analytic aggregate; FS falls with
-    kh (ρ = −1). About 3 s per realisation."""
+    1.1673), and limit equilibrium's (the analytic aggregate, kh counted) to 1e-4; FS falls
+    with kh (ρ = −1)."""
     scene = example("incline_seismic")
     scene["analysis"]["factor_of_safety"]["tolerance"] = 0.02
     scene["sweep"] = {"n": 3, "seed": SEED, "parameters": {
@@ -309,7 +320,9 @@ def test_dda_sweep_of_kh_follows_the_pseudo_static_formula(tmp_path: Path) -> No
             math.sin(a) + kh * math.cos(a))
         assert rec["status"] == "completed"
         assert rec["factor_of_safety"] == pytest.approx(exact, rel=0.01)
-    assert "analytic" not in doc and doc["dda"]["sensitivity"] == {"kh": pytest.approx(-1.0)}
+        assert rec["analytic_fs"] == pytest.approx(exact, rel=1e-4)
+    assert doc["dda"]["sensitivity"] == {"kh": pytest.approx(-1.0)}
+    assert doc["analytic"]["sensitivity"] == {"kh": pytest.approx(-1.0)}
 
 
 def test_cli_parameter_option(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:

@@ -18,8 +18,6 @@ from typing import Any
 
 import numpy as np
 
-from engine.analyses.jointstats import Distribution, fisher_angles_of
-from engine.analyses.reliability import aggregate, truncated_normal
 from engine.jsonable import finite
 
 #: what a sweep may vary: (lowest, highest, unit) of each quantity; a normal or lognormal
@@ -44,8 +42,10 @@ def sweep_truncation(quantity: str, low: float | None = None,
     lo, hi, _ = SWEEP_QUANTITIES[quantity]
     return (lo if low is None else max(lo, low), hi if high is None else min(hi, high))
 
-#: the quantities eq. 51 (sweep mode `analytic`) takes into account
-ANALYTIC_QUANTITIES = ("friction_angle", "joint_orientation")
+#: the quantities limit equilibrium (sweep mode `analytic`) takes into account: all but the
+#: DDA's numerical settings
+ANALYTIC_QUANTITIES = ("friction_angle", "cohesion", "joint_orientation", "water_level", "kh",
+                       "bolt_pretension", "bolt_capacity")
 MODES = ("dda", "analytic")
 #: the parameter drawn from the seed itself (the friction-only sweeps' stream)
 LEGACY_NAME = "friction_angle"
@@ -94,6 +94,11 @@ class Parameter:
     def draw(self, n: int, seed: int) -> np.ndarray:
         """Realisations 0 .. n-1 of a random parameter, `(n,)`, or `(n, 2)` angles θ, ψ
         (radians) from the joint's mean normal for `fisher`; row k does not depend on n."""
+        # scipy.stats behind these costs half a second to import: only a sweep needs it
+        # (the scene schema imports this module for the quantities' ranges)
+        from engine.analyses.jointstats import Distribution, fisher_angles_of
+        from engine.analyses.reliability import truncated_normal
+
         if self.distribution == "normal":
             lo, hi = sweep_truncation(self.quantity, self.low, self.high)
             return truncated_normal(self.mean, self.sd, n, self.entropy(seed), lo, hi)
@@ -158,8 +163,9 @@ class SweepSpec:
         if self.mode == "analytic":
             bad = [p.name for p in self.parameters if p.quantity not in ANALYTIC_QUANTITIES]
             if bad:
-                raise ValueError(f"eq. 51 (mode 'analytic') covers only "
-                                 f"{' and '.join(ANALYTIC_QUANTITIES)}, not {', '.join(bad)}")
+                raise ValueError(f"limit equilibrium (mode 'analytic') has no "
+                                 f"{', '.join(bad)}: those are settings of the DDA; use "
+                                 "mode 'dda'")
 
     def all_parameters(self) -> tuple[Parameter, ...]:
         """The short-form friction angle (if given) and then the parameters, in order."""
@@ -186,7 +192,7 @@ class SweepSpec:
         return self.draws()[LEGACY_NAME]
 
     def analytic_applies(self) -> bool:
-        """Whether eq. 51 takes every parameter into account."""
+        """Whether limit equilibrium takes every parameter into account."""
         return all(p.quantity in ANALYTIC_QUANTITIES for p in self.all_parameters())
 
     def indices(self) -> list[int]:
@@ -285,9 +291,11 @@ def sensitivity_inputs(records: Sequence[Mapping[str, Any]]) -> dict[str, list[f
 
 
 def sweep_document(spec: SweepSpec, records: list[dict[str, Any]]) -> dict[str, Any]:
-    """Aggregate of the realisations done: by `spec.mode`, and by eq. 51 over the same
-    realisations when the scene is a two-joint wedge (and eq. 51 takes every parameter);
+    """Aggregate of the realisations done: by `spec.mode`, and by limit equilibrium over
+    the same realisations when it applies to every one (`analytic_note` says why not);
     their PoF difference. The sensitivity is Spearman's ρ of FS and each parameter."""
+    from engine.analyses.reliability import aggregate
+
     inputs = sensitivity_inputs(records)
     fs = [r["factor_of_safety"] if r.get("status") == "completed" else None for r in records]
     fs_arr = np.array([np.nan if f is None else f for f in fs], float)
@@ -307,5 +315,9 @@ def sweep_document(spec: SweepSpec, records: list[dict[str, Any]]) -> dict[str, 
         doc["fs_relative_difference"] = {
             "mean": float(rel[ok].mean()) if ok.any() else None,
             "max_abs": float(np.abs(rel[ok]).max()) if ok.any() else None}
+    notes = sorted({r["analytic_note"] for r in records if r.get("analytic_note")})
+    if notes:
+        doc["analytic_note"] = ("limit equilibrium did not apply to every realisation: "
+                                + "; ".join(notes[:3]))
     doc["realisations"] = records
     return finite(doc)

@@ -70,6 +70,60 @@ def contact_loads(f: np.ndarray, dof_map: np.ndarray, bi: np.ndarray, bj: np.nda
     return fric_mag, fric
 
 
+@nb.njit(cache=True)
+def patch_bonds(d0: np.ndarray, normal: np.ndarray, dr: np.ndarray, shear0: np.ndarray,
+                offset: np.ndarray, mode: np.ndarray, tangent: np.ndarray,
+                broken: np.ndarray, tan_phi: np.ndarray, tension_force: np.ndarray,
+                cohesion_force: np.ndarray, fric_mag: np.ndarray, kn: float, ks: float,
+                cn: np.ndarray, dt: float, patch: np.ndarray, n_patch: int) -> np.ndarray:
+    """Which bonded patches hold `(n_patch,) bool` after a solve with relative
+    displacements `dr (c, 3)`: a patch with unbroken closed contacts holds while the total
+    shear force of its closed contacts (locked springs, sliding friction) is within
+    `Σ tan φ N + Σ c A` (friction of all its closed contacts, cohesion of the unbroken
+    ones); one that exceeds it loses its whole bond (`broken` set in place for every
+    contact of the patch). Normal forces as :func:`update_modes` takes them."""
+    held = np.zeros(n_patch, dtype=np.bool_)
+    if n_patch == 0:
+        return held
+    shear = np.zeros((n_patch, 3))
+    capacity = np.zeros(n_patch)
+    bond = np.zeros(n_patch)
+    for k in range(len(d0)):
+        p = patch[k]
+        if p < 0 or mode[k] == OPEN:
+            continue
+        n0, n1, n2 = normal[k, 0], normal[k, 1], normal[k, 2]
+        g1 = d0[k] + dr[k, 0] * n0 + dr[k, 1] * n1 + dr[k, 2] * n2
+        normal_force = -kn * g1 - cn[k] * (g1 - min(d0[k], 0.0)) / dt
+        allow = 0.0 if broken[k] else tension_force[k]
+        if -kn * g1 >= -allow and normal_force < -allow and cn[k] > 0.0:
+            normal_force = -kn * g1  # the dashpot lets go (as update_modes decides)
+        capacity[p] += tan_phi[k] * max(normal_force, 0.0)
+        if not broken[k]:
+            bond[p] += cohesion_force[k]
+        if mode[k] == LOCKED:
+            s = np.empty(3)
+            for r in range(3):
+                s[r] = shear0[k, r] + offset[k, r] + dr[k, r]
+            sn = s[0] * n0 + s[1] * n1 + s[2] * n2
+            shear[p, 0] += ks * (s[0] - sn * n0)
+            shear[p, 1] += ks * (s[1] - sn * n1)
+            shear[p, 2] += ks * (s[2] - sn * n2)
+        else:
+            for r in range(3):
+                shear[p, r] += fric_mag[k] * tangent[k, r]
+    for p in range(n_patch):
+        if bond[p] <= 0.0:
+            continue
+        ts = np.sqrt(shear[p, 0] ** 2 + shear[p, 1] ** 2 + shear[p, 2] ** 2)
+        held[p] = ts <= (capacity[p] + bond[p]) * (1 + 1e-9)
+    for k in range(len(d0)):
+        p = patch[k]
+        if p >= 0 and bond[p] > 0.0 and not held[p]:
+            broken[k] = True
+    return held
+
+
 # One compiled loop by design: Table 2's branches for a contact share its relative
 # displacement, shear stretch and friction limit, computed once; split into several kernels
 # they would pass a dozen per-contact arrays back and forth every open-close cycle.
@@ -81,7 +135,8 @@ def update_modes(d0: np.ndarray, normal: np.ndarray, dr: np.ndarray, shear0: np.
                  cohesion_force: np.ndarray, fric_mag: np.ndarray, fric_prev: np.ndarray,
                  kn: float, ks: float, cn: np.ndarray, dt: float,
                  open_close_gap: float, resolution: np.ndarray, max_reopenings: int,
-                 max_switches: int):  # noqa: ANN201 (a long tuple, see docstring)
+                 max_switches: int, patch: np.ndarray,
+                 n_patch: int):  # noqa: ANN201 (a long tuple, see docstring)
     """Table 2 for every contact after a solve with relative displacements `dr (c, 3)`.
 
     Contact forces are the penalty springs' and the normal dashpots' (`cn (c,)` N·s/m, on
@@ -101,7 +156,11 @@ def update_modes(d0: np.ndarray, normal: np.ndarray, dr: np.ndarray, shear0: np.
     sliding for good (`switches` = FINAL_SLIDE). An open contact that penetrates (deeper
     than `open_close_gap` plus its `resolution`) and would press (the force law of the
     opening test, so a contact at rest on the boundary does not chatter) closes at its first
-    entrance (eqs. 42-47), sliding if the shear after entrance exceeds friction. Updates
+    entrance (eqs. 42-47), sliding if the shear after entrance exceeds friction. A contact
+    of a bonded patch (`patch (c,)`, -1 none; `n_patch` patches; engine.contact.patches)
+    slips by the patch as a whole: while the patch's total shear force is within `Σ tan φ N
+    + Σ c A` of its closed contacts (cohesion of the unbroken ones) its bonded contacts stay
+    locked whatever each carries; beyond it the whole bond breaks (:func:`patch_bonds`). Updates
     `offset`, `broken`, `reopenings`, `switches` in place. Returns `(mode, tangent, nstar,
     d1, dr_t, along, fn, changed, closed_changed, fric_change, anchored)`: the new modes,
     sliding directions and friction normal forces N*, the end gaps, tangential slips, slips
@@ -122,6 +181,9 @@ def update_modes(d0: np.ndarray, normal: np.ndarray, dr: np.ndarray, shear0: np.
     fric_top = 0.0
     fric_diff = 0.0
     anchored = np.zeros(c)
+    held = patch_bonds(d0, normal, dr, shear0, offset, mode, tangent, broken, tan_phi,
+                       tension_force, cohesion_force, fric_mag, kn, ks, cn, dt, patch,
+                       n_patch)
     for k in range(c):
         n0, n1, n2 = normal[k, 0], normal[k, 1], normal[k, 2]
         dn = dr[k, 0] * n0 + dr[k, 1] * n1 + dr[k, 2] * n2
@@ -161,13 +223,16 @@ def update_modes(d0: np.ndarray, normal: np.ndarray, dr: np.ndarray, shear0: np.
             f0, f1, f2 = ks * s0, ks * s1, ks * s2
             ts = np.sqrt(f0 * f0 + f1 * f1 + f2 * f2)
             free = switches[k] < max_switches
-            if m == LOCKED and free and ts > limit * (1 + 1e-9):
+            # a bonded contact of a patch whose bond holds stays locked (the patch slips as
+            # one, patch_bonds)
+            bonded = patch[k] >= 0 and not broken[k] and held[patch[k]]
+            if m == LOCKED and not bonded and free and ts > limit * (1 + 1e-9):
                 nm = SLIDING
                 switches[k] += 1
                 new_tangent[k, 0], new_tangent[k, 1], new_tangent[k, 2] = (
                     f0 / ts, f1 / ts, f2 / ts)
                 broken[k] = True
-            elif m == LOCKED and ts > limit * (1 + 1e-9):
+            elif m == LOCKED and not bonded and ts > limit * (1 + 1e-9):
                 # a contact that chatters between locked and sliding sits at its friction
                 # limit: it stays locked, and its spring's anchor slides back until the
                 # shear force is the friction (return mapping; loads change, K does not)

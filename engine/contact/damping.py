@@ -42,7 +42,30 @@ from engine.status import StepFailure
 MAX_DAMPING_PASSES = 4
 
 
-def _relative_velocity(before: State, sub: ContactSet, v: np.ndarray
+@dataclass
+class _Points:
+    """The closed contacts a step's dashpots act on: blocks, points, normals, modes and
+    joint materials `(r, ...)` (rows of the step's ContactSet)."""
+
+    block_i: np.ndarray
+    block_j: np.ndarray
+    point_i: np.ndarray
+    point_j: np.ndarray
+    normal: np.ndarray
+    mode: np.ndarray
+    joint_material: np.ndarray
+
+    def __len__(self) -> int:
+        return len(self.block_i)
+
+    @classmethod
+    def of(cls, cs: ContactSet | _Points, rows: np.ndarray) -> _Points:
+        """The contacts `rows` of `cs`."""
+        return cls(cs.block_i[rows], cs.block_j[rows], cs.point_i[rows], cs.point_j[rows],
+                   cs.normal[rows], cs.mode[rows], cs.joint_material[rows])
+
+
+def _relative_velocity(before: State, sub: ContactSet | _Points, v: np.ndarray
                        ) -> tuple[np.ndarray, np.ndarray]:
     """Relative velocity of block i's contact point to block j's for block velocities
     `v (n, 12)` at the step's start geometry: normal `(c,)` m/s (positive: parting) and
@@ -54,7 +77,8 @@ def _relative_velocity(before: State, sub: ContactSet, v: np.ndarray
     return vn, rel - vn[:, None] * sub.normal
 
 
-def ringing(before: State, sub: ContactSet, v1: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def ringing(before: State, sub: ContactSet | _Points, v1: np.ndarray
+            ) -> tuple[np.ndarray, np.ndarray]:
     """Which closed contacts get their dashpots after the step `(c,) bool`, normally and
     tangentially: normally where the relative velocity at the step's end, `v1 (n, 12)`,
     points against the one at its start (a ring, a landing) or the blocks part (the spring
@@ -73,7 +97,7 @@ class _Dashpots:
 
     system: BlockSystem
     before: State
-    sub: ContactSet
+    sub: _Points
     plan: asm.SystemPlan
     ti: np.ndarray
     tj: np.ndarray
@@ -136,7 +160,7 @@ def damp_contacts(system: BlockSystem, before: State, res: StepResult, after: St
     if system.controls.contact_damping <= 0 or len(closed) == 0:
         return after
     nd = system.ndof
-    sub = cs.subset(closed)
+    sub = _Points.of(cs, closed)
     # what the normal spring presses with, and the friction a locked contact's shear spring
     # leaves, for the dashpots (N)
     pressed = np.maximum(res.normal_force[closed], 0.0)
@@ -148,9 +172,9 @@ def damp_contacts(system: BlockSystem, before: State, res: StepResult, after: St
     rings = np.flatnonzero(ring_n | ring_t)
     if len(rings) == 0:
         return after
-    sub, pressed, headroom = sub.subset(rings), pressed[rings], headroom[rings]
     # the dashpots of the closed contacts (a pair's mass shared by those that carry it)
-    cn, cshear = (c[rings] for c in contact_damping(system, before, cs.subset(closed)))
+    cn, cshear = (c[rings] for c in contact_damping(system, before, sub.block_i, sub.block_j))
+    sub, pressed, headroom = _Points.of(sub, rings), pressed[rings], headroom[rings]
     cn = np.where(ring_n[rings], cn, 0.0)
     cshear = np.where(ring_t[rings], cshear, 0.0)
     bi, bj = sub.block_i, sub.block_j

@@ -31,6 +31,7 @@ from engine.contact._open_close_kernels import (
 )
 from engine.contact._open_close_kernels import initial_modes as _initial_modes
 from engine.contact.constraints import LOCKED, OPEN, SLIDING, ContactSet
+from engine.contact.patches import ContactPatches, bond_breaks
 from engine.contact.solution import StepResult
 from engine.dynamics import assembly as asm
 from engine.dynamics._assembly_kernels import relative_displacement
@@ -97,7 +98,8 @@ def initial_modes(system: BlockSystem, state: State, contacts: ContactSet,
 class _Terms:
     """The step's contacts as the compiled kernels take them (fixed during the iteration):
     blocks, normals, start gaps `d0` and shear `shear0`, T at the contact points on the
-    unknown columns `ti`, `tj (c, 3, d)`, the unknowns `dmap (n, d)`, and the strengths."""
+    unknown columns `ti`, `tj (c, 3, d)`, the unknowns `dmap (n, d)`, the strengths, and
+    each contact's face-to-face patch (-1: none) with the number of patches."""
 
     bi: np.ndarray
     bj: np.ndarray
@@ -112,6 +114,8 @@ class _Terms:
     tension_force: np.ndarray
     cn: np.ndarray
     resolution: np.ndarray  # (c,) m: gaps within it are round-off (contact_round_off)
+    patch: np.ndarray
+    n_patch: int
 
 
 def block_masses(system: BlockSystem, state: State) -> np.ndarray:
@@ -131,34 +135,57 @@ def round_off_gaps(system: BlockSystem, state: State, contacts: ContactSet) -> n
     return force / system.kn
 
 
-def contact_damping(system: BlockSystem, state: State, contacts: ContactSet
-                    ) -> tuple[np.ndarray, np.ndarray]:
-    """Normal and shear dashpots `(cn, cs)` `(c,)` N·s/m of the step's contacts: the
-    fraction `contact_damping` of critical damping, 2 ζ √(k m), of each contact's spring
-    carrying its share of the block pair's reduced mass (a fixed block's mass is infinite;
-    a pair's contacts share its mass equally)."""
+#: below this many contacts a Python dict counts a step's block pairs faster than numpy
+SMALL_PAIR_COUNT = 64
+
+
+def pair_counts(pair: np.ndarray) -> np.ndarray:
+    """How many of the entries `pair (c,) int` equal each one `(c,)` (np.unique's counts
+    mapped back, without its cost for a few contacts)."""
+    if len(pair) <= SMALL_PAIR_COUNT:
+        keys = pair.tolist()
+        seen: dict[int, int] = {}
+        for k in keys:
+            seen[k] = seen.get(k, 0) + 1
+        return np.array([seen[k] for k in keys], dtype=np.int64)
+    order = np.argsort(pair, kind="stable")
+    sorted_pair = pair[order]
+    first = np.empty(len(pair), dtype=bool)
+    first[0] = True
+    np.not_equal(sorted_pair[1:], sorted_pair[:-1], out=first[1:])
+    starts = np.flatnonzero(first)
+    counts = np.diff(np.append(starts, len(pair)))
+    out = np.empty(len(pair), dtype=np.int64)
+    out[order] = np.repeat(counts, counts)
+    return out
+
+
+def contact_damping(system: BlockSystem, state: State, block_i: np.ndarray,
+                    block_j: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Normal and shear dashpots `(cn, cs)` `(c,)` N·s/m of contacts between blocks
+    `block_i`, `block_j (c,)`: the fraction `contact_damping` of critical damping,
+    2 ζ √(k m), of each contact's spring carrying its share of the block pair's reduced
+    mass (a fixed block's mass is infinite; a pair's contacts share its mass equally)."""
     zeta = system.controls.contact_damping
-    c = len(contacts)
+    c = len(block_i)
     if zeta <= 0 or c == 0:
         return np.zeros(c), np.zeros(c)
     mass = block_masses(system, state)
-    mi, mj = mass[contacts.block_i], mass[contacts.block_j]
+    mi, mj = mass[block_i], mass[block_j]
     reduced = 1.0 / (1.0 / mi + 1.0 / mj)
-    pair = contacts.block_i * system.n + contacts.block_j
-    _, inverse, count = np.unique(pair, return_inverse=True, return_counts=True)
-    share = reduced / count[inverse.ravel()]
+    share = reduced / pair_counts(block_i * system.n + block_j)
     return 2.0 * zeta * np.sqrt(system.kn * share), 2.0 * zeta * np.sqrt(system.ks * share)
 
 
-def _terms(system: BlockSystem, state: State, contacts: ContactSet, areas: np.ndarray,
-           shear0: np.ndarray) -> _Terms:
+def _terms(system: BlockSystem, state: State, contacts: ContactSet,
+           patches: ContactPatches, shear0: np.ndarray) -> _Terms:
     nd = system.ndof
     bi, bj = contacts.block_i, contacts.block_j
     jm = contacts.joint_material
     # only the normal dashpot acts inside the solve: a shear dashpot on a locked contact is
     # viscous static friction (the shear dashpots after the step, engine.contact.damping,
     # keep theirs)
-    cn, _ = contact_damping(system, state, contacts)
+    cn, _ = contact_damping(system, state, bi, bj)
     return _Terms(
         bi=bi, bj=bj, normal=contacts.normal, d0=contacts.gap, shear0=shear0,
         ti=np.ascontiguousarray(asm.displacement_matrices(
@@ -166,8 +193,10 @@ def _terms(system: BlockSystem, state: State, contacts: ContactSet, areas: np.nd
         tj=np.ascontiguousarray(asm.displacement_matrices(
             contacts.point_j, state.centroid[bj])[:, :, :nd]),
         dmap=np.ascontiguousarray(system.dof_map[:, :nd]), tan_phi=system.tan_phi[jm],
-        cohesion_force=system.cohesion[jm] * areas, tension_force=system.tension[jm] * areas,
-        cn=cn, resolution=round_off_gaps(system, state, contacts))
+        cohesion_force=system.cohesion[jm] * patches.share,
+        tension_force=system.tension[jm] * patches.share,
+        cn=cn, resolution=round_off_gaps(system, state, contacts), patch=patches.patch,
+        n_patch=len(patches))
 
 
 @dataclass
@@ -300,7 +329,7 @@ def _cycle(system: BlockSystem, state: State, t: _Terms, m: _Modes, lin: _Linear
                        m.reopenings, m.switches, t.tan_phi, t.tension_force,
                        t.cohesion_force, fric_mag, m.fric_prev, system.kn, system.ks, m.cn,
                        dt, system.open_close_gap, t.resolution, MAX_REOPENINGS,
-                       MAX_SHEAR_SWITCHES)
+                       MAX_SHEAR_SWITCHES, t.patch, t.n_patch)
     clock = diag.tick("open_close", clock)
     return _Cycle(x, fric_mag, fric, dr, *out), clock
 
@@ -403,8 +432,8 @@ def reseat_loss(system: BlockSystem, state: State, t: _Terms) -> float:
 
 
 def _converged(system: BlockSystem, state: State, contacts: ContactSet, t: _Terms,
-               m: _Modes, cyc: _Cycle, mass: np.ndarray, iterations: int,
-               dt: float) -> StepResult:
+               m: _Modes, cyc: _Cycle, mass: np.ndarray, iterations: int, dt: float,
+               patches: ContactPatches, broken0: np.ndarray) -> StepResult:
     """The step's result from its last cycle; StepFailure when its implicit springs
     released energy they never stored (a spring re-locked with an offset from an earlier
     cycle of a fast step would accelerate the blocks: redo the step smaller)."""
@@ -426,18 +455,19 @@ def _converged(system: BlockSystem, state: State, contacts: ContactSet, t: _Term
         gap1=cyc.d1, shear=shear1, slip=cyc.dr_t, normal_force=nf, shear_force=sf,
         friction_work=fw, iterations=iterations, mode_changes=m.mode_changes,
         numerical_dissipation=num + reseat, damping_dissipation=damp, broken=m.broken,
-        reseat_dissipation=reseat)
+        reseat_dissipation=reseat, bond_breaks=bond_breaks(patches, broken0, m.broken))
 
 
 def open_close_iteration(system: BlockSystem, state: State, contacts: ContactSet,
-                         areas: np.ndarray, start: StartModes, dt: float) -> StepResult:
+                         patches: ContactPatches, start: StartModes, dt: float) -> StepResult:
     """The converged step of `dt` s from the start modes `start` (StepFailure if it does
     not converge within `max_open_close_iterations` open/closed changes, or breaks a rescue
     rule)."""
     clock = _time.perf_counter()
     kb, fb, mass = block_terms(system, state, dt)
     f_block = asm.scatter_vector(system.dof_map, np.arange(system.n), fb, system.n_unknowns)
-    t = _terms(system, state, contacts, areas, start.shear)
+    t = _terms(system, state, contacts, patches, start.shear)
+    broken0 = start.broken.copy()
     m = _start(system, start, t)
     lin = _LinearSystem(system, kb, t, dt, bolt_links(system, state))
     max_changes = system.controls.max_open_close_iterations
@@ -458,6 +488,6 @@ def open_close_iteration(system: BlockSystem, state: State, contacts: ContactSet
             continue
         if lock_reversed_sliders(system, t, m, cyc, was_sliding):
             continue
-        return _converged(system, state, contacts, t, m, cyc, mass, it, dt)
+        return _converged(system, state, contacts, t, m, cyc, mass, it, dt, patches, broken0)
     raise StepFailure(f"open-close iteration did not converge ({m.mode_changes} mode "
                       f"changes, {it} cycles)", "open_close")

@@ -1,16 +1,16 @@
 """Contacts of a step: how far each block may move (its displacement limit and search
 reach), detection at the start of the step with joint materials, starting depths a spring
-may plausibly have, and the contact patch areas that cohesion and tension act on."""
+may plausibly have, and the contact patches that cohesion and tension act on."""
 
 from __future__ import annotations
 
 import time as _time
 
 import numpy as np
-from scipy.spatial import ConvexHull, QhullError
 
 from engine.contact.constraints import OPEN, ContactSet, assign_joint_materials
 from engine.contact.detection import detect_contacts
+from engine.contact.patches import ContactPatches, contact_patches
 from engine.dynamics.motion import current_vertices, mass_properties, point_displacements
 from engine.dynamics.state import State
 from engine.dynamics.system import BlockSystem
@@ -66,38 +66,6 @@ def detect(system: BlockSystem, state: State, search: float | np.ndarray | None 
     assign_joint_materials(contacts, m.default_joint_material, m.joint_material_of_tag,
                            m.pair_joint_material)
     return contacts
-
-
-def contact_areas(contacts: ContactSet) -> np.ndarray:
-    """Each constraint's share `(c,)` m² of its contact patch.
-
-    Constraints of one block pair with a common plane form a patch; its area is the area
-    of the convex hull of their points in that plane, shared equally. Fewer than three
-    points (edge or vertex contacts) carry no area.
-    """
-    out = np.zeros(len(contacts))
-    if not len(contacts):
-        return out
-    key = np.column_stack([contacts.block_i, contacts.block_j,
-                           np.round(contacts.normal * 1e6)]).astype(np.int64)
-    _, group = np.unique(key, axis=0, return_inverse=True)
-    group = group.ravel()
-    for g in np.unique(group):
-        idx = np.flatnonzero(group == g)
-        if len(idx) < 3:
-            continue
-        nrm = contacts.normal[idx[0]]
-        u = np.cross(nrm, [1.0, 0, 0] if abs(nrm[0]) < 0.9 else [0, 1.0, 0])
-        u /= np.linalg.norm(u)
-        v = np.cross(nrm, u)
-        p = contacts.point_j[idx]
-        pts = np.column_stack([p @ u, p @ v])
-        try:
-            area = ConvexHull(pts).volume
-        except QhullError:
-            area = 0.0
-        out[idx] = area / len(idx)
-    return out
 
 
 def _pairs(system: BlockSystem, key: np.ndarray, block_i: np.ndarray, block_j: np.ndarray
@@ -188,13 +156,14 @@ def plausible_gaps(system: BlockSystem, state: State, contacts: ContactSet) -> i
 
 
 def find_contacts(system: BlockSystem, state: State, reach: np.ndarray
-                  ) -> tuple[ContactSet, np.ndarray]:
+                  ) -> tuple[ContactSet, ContactPatches]:
     """The step's contacts within the blocks' `reach (n,)` m (:func:`step_search`), depths
-    made plausible, and their patch areas `(c,)` m² (zero unless a joint has cohesion or
-    tensile strength)."""
+    made plausible, and their face-to-face patches (none unless a joint has cohesion or
+    tensile strength: :mod:`engine.contact.patches`)."""
     clock = _time.perf_counter()
     contacts = detect(system, state, reach)
     state.diagnostics.relaxed_contacts += plausible_gaps(system, state, contacts)
     state.diagnostics.tick("detection", clock)
-    areas = contact_areas(contacts) if system.needs_areas else np.zeros(len(contacts))
-    return contacts, areas
+    patches = (contact_patches(contacts) if system.needs_areas
+               else ContactPatches.none(len(contacts)))
+    return contacts, patches

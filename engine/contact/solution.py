@@ -37,3 +37,6 @@ class StepResult:
     #: of `numerical_dissipation`, what the springs lost between the steps (J; re-detected
     #: shallower, on another plane or not at all: `open_close.reseat_loss`)
     reseat_dissipation: float = 0.0
+    #: face-to-face bonds (patches, engine.contact.patches) the step broke whole, and those
+    #: it broke in part (progressively: tension where the stress over the patch is uneven)
+    bond_breaks: tuple[int, int] = (0, 0)

@@ -99,6 +99,10 @@ class Diagnostics:
     energy_created: float = 0.0
     max_energy_created: float = 0.0
     energy_scale: float = 0.0
+    #: face-to-face bonds (cohesion, tensile strength over a contact patch) broken whole,
+    #: and broken in part, progressively, where the stress over the patch is uneven
+    bonds_broken: int = 0
+    bonds_broken_progressively: int = 0
 
     def tick(self, phase: str, since: float) -> float:
         """Add the wall time since `since` (perf_counter) to `phase`; return now."""

@@ -74,7 +74,8 @@ def _penetrations(system: BlockSystem, state: State, res: StepResult
                   ) -> tuple[np.ndarray, Diagnostics]:
     """Each block's deepest contact penetration at the end of the step `(n,)` m (what the
     next step's search must reach), and the diagnostics with the run's deepest
-    penetrations and the springs' re-seat loss updated (a copy: the step may be redone)."""
+    penetrations, the springs' re-seat loss and the bonds broken updated (a copy: the step
+    may be redone)."""
     cs, gap = res.contacts, res.gap1
     deepest = np.zeros(system.n)
     if len(gap):
@@ -88,9 +89,12 @@ def _penetrations(system: BlockSystem, state: State, res: StepResult
     if np.any(closed):
         thin = np.minimum(system.thickness[cs.block_i], system.thickness[cs.block_j])
         ratio = max(ratio, float(np.max(-gap[closed] / thin[closed], initial=0.0)))
+    whole, part = res.bond_breaks
     return deepest, dataclasses.replace(
         d, max_penetration=pen, max_penetration_ratio=ratio,
-        reseat_dissipation=d.reseat_dissipation + res.reseat_dissipation)
+        reseat_dissipation=d.reseat_dissipation + res.reseat_dissipation,
+        bonds_broken=d.bonds_broken + whole,
+        bonds_broken_progressively=d.bonds_broken_progressively + part)
 
 
 def _advance_bolts(system: BlockSystem, state: State, after: State, d: np.ndarray) -> None:

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 from typing import Any, Protocol
 
@@ -29,10 +30,17 @@ def energy_created(energies: dict) -> float | np.ndarray:
     Zero for an exact run; the balance is taken from the start (subtract its value at step
     0 for a run that did not start at rest and unloaded). Missing terms count as zero."""
     def total(names: tuple[str, ...]) -> float | np.ndarray:
-        return sum(np.nan_to_num(np.asarray(energies[n], float)) for n in names
-                   if n in energies)
+        return sum(_finite(energies[n]) for n in names if n in energies)
 
     return total(STORED_ENERGIES) + total(DISSIPATIONS) + total(REMOVED) - total(WORKS)
+
+
+def _finite(x: object) -> float | np.ndarray:
+    """`x` with NaN as 0 and infinities as the largest floats (numpy's nan_to_num), without
+    its cost for a finite Python or numpy scalar (a step checks its energies every time)."""
+    if isinstance(x, float) and math.isfinite(x):
+        return np.float64(x)
+    return np.nan_to_num(np.asarray(x, float))
 
 
 @dataclass

@@ -71,6 +71,13 @@ def warnings(system: BlockSystem, state: State) -> list[str]:
             f"contacts penetrated up to {d.max_penetration:.3g} m "
             f"({d.max_penetration_ratio:.1%} of the thinner block) with the penalty "
             f"{system.kn:.3g} N/m, and displacements carry an error of that order; {advice}")
+    if d.bonds_broken_progressively:
+        out.append(
+            f"{d.bonds_broken_progressively} time(s) a joint's bond (cohesion, tensile "
+            "strength over a face-to-face contact) broke in part and held the rest: the "
+            "stress over the contact is uneven (bending, toppling, a load off its centre), "
+            "so it fails progressively, from the edge in; limit equilibrium, which counts "
+            "c·A over the whole face, overestimates such a joint")
     return out
 
 
@@ -95,6 +102,8 @@ def summary(system: BlockSystem, state: State, status: str, message: str,
         "max_penetration": d.max_penetration, "warnings": warnings(system, state),
         "blocks": blocks, **_bolt_summary(system, state), "timings": dict(d.timings),
         "relaxed_contacts": d.relaxed_contacts,
+        "bonds_broken": {"whole": d.bonds_broken,
+                         "progressively": d.bonds_broken_progressively},
         "reseat_dissipation": d.reseat_dissipation, "time_step_cuts": dict(d.cuts),
         "time_step_limited_by": dict(d.limited_by),
         "solves": {"solves": d.solves, "factorizations": d.factorizations},

@@ -90,13 +90,13 @@ class Simulation:
         """Advance one step, cutting Δt as needed (StepFailure below the smallest Δt)."""
         system, state = self.system, self.state
         attempt = stepping.first_attempt(system, state)
-        contacts, areas = find_contacts(system, state, stepping.reach(system, state, attempt))
+        contacts, patches = find_contacts(system, state, stepping.reach(system, state, attempt))
         res = None
         while True:
             try:
                 if res is None:
                     start = initial_modes(system, state, contacts, attempt.dt)
-                    res = open_close_iteration(system, state, contacts, areas, start,
+                    res = open_close_iteration(system, state, contacts, patches, start,
                                                attempt.dt)
                 stepping.check(system, res, attempt)
                 clock = _time.perf_counter()
@@ -105,10 +105,10 @@ class Simulation:
                 energy.check_step(system, state, after)
                 break
             except stepping.SearchWider:
-                wider, areas_wider = find_contacts(system, state,
-                                                   stepping.reach(system, state, attempt))
+                wider, patches_wider = find_contacts(system, state,
+                                                     stepping.reach(system, state, attempt))
                 if not wider.same_as(contacts):  # the same contacts give the same step
-                    contacts, areas, res = wider, areas_wider, None
+                    contacts, patches, res = wider, patches_wider, None
             except StepFailure as exc:
                 attempt = stepping.cut(system, state, attempt, exc)
                 res = None

@@ -129,7 +129,9 @@ def _fos_sentences(fos: dict[str, Any]) -> list[str]:
               if bracket else ")"))
     verdict = (f"stable, with a margin of {100 * (fs - 1):.0f} % on the joints' strength"
                if fs >= 1.0 else "the blocks fail under the joints' present strength")
-    out = [f"<b>Factor of safety FS = {fs:.2f}</b>, found {how}: {verdict}."]
+    # a bound: no trial failed up to the largest factor (≥), or every one down to the least
+    sign = {"lower": "≥", "upper": "<"}.get(fos.get("bound") or "", "=")
+    out = [f"<b>Factor of safety FS {sign} {fs:.2f}</b>, found {how}: {verdict}."]
     if fos.get("message"):
         out.append(escape(str(fos["message"])) + ".")
     return out
@@ -141,11 +143,21 @@ def _seismic_sentences(doc: dict[str, Any]) -> list[str]:
     if not isinstance(kh, float):
         return [f"No critical seismic coefficient: {escape(str(doc.get('message')))}."]
     bracket = fos_bracket(runs, key="kh")
-    return [f"<b>Critical seismic coefficient kh = {kh:.3f}</b> (horizontal force towards "
+    sign = {"lower": "≥", "upper": "<"}.get(doc.get("bound") or "", "=")
+    return [f"<b>Critical seismic coefficient kh {sign} {kh:.3f}</b> (horizontal force towards "
             f"{doc.get('azimuth', 0):03.0f}°, kv {doc.get('kv', 0):g}), found by bisection over "
             f"{rd.plural(len(runs), 'trial run')}"
             + (f" (holds at {bracket[0]:.4g}, fails at {bracket[1]:.4g})" if bracket else "")
-            + f": a horizontal acceleration of {kh:.3f} g starts the watched blocks moving."]
+            + f": a horizontal acceleration of {kh:.3f} g makes the watched blocks fail."]
+
+
+def _le_sentences(le: dict[str, Any]) -> list[str]:
+    fs = le.get("factor_of_safety")
+    planes = ", ".join(le.get("sliding_planes") or [])
+    value = ("unbounded (nothing drives the block)" if fs is None else f"{fs:.2f}")
+    return [f"<b>Limit equilibrium FS = {escape(value)}</b> of {escape(str(le.get('block')))}"
+            f" by the vector method: {escape(str(le.get('mode', '')))}"
+            + (f" on {escape(planes)}" if planes else "") + "."]
 
 
 def _sweep_sentences(sweep: dict[str, Any]) -> list[str]:
@@ -179,6 +191,8 @@ def conclusion(parts: ReportParts, warnings: list[str]) -> str:
         s += _fos_sentences(docs["fos.json"])
     if "seismic.json" in docs:
         s += _seismic_sentences(docs["seismic.json"])
+    if "le.json" in docs:
+        s += _le_sentences(docs["le.json"])
     if parts.sweep:
         s += _sweep_sentences(parts.sweep)
     if "summary.json" in docs:
@@ -262,24 +276,48 @@ def _fos_section(fos: dict[str, Any]) -> str:
         out.append(f"<p class='muted'>Watched blocks: {_cell(fos['watch_blocks'])}.</p>")
     runs = fos.get("runs") or []
     if runs:
-        out.append("<h3>Bisection history (trial runs)</h3>" + _table(
-            ([k + 1, f"{r.get('factor', r.get('kh', 0.0)):.4f}",
-              "fails" if r.get("failed") else "holds",
-              f"{r.get('mean_acceleration', 0.0):.3f}", r.get("status", "")]
-             for k, r in enumerate(runs)),
-            ["trial", "F", "verdict", "mean acceleration (m/s²)", "run"]))
+        out.append("<h3>Bisection history (trial runs)</h3>" + _trials_table(runs, "factor", "F"))
     return "".join(out)
+
+
+def _trials_table(runs: list[dict[str, Any]], key: str, label: str) -> str:
+    """Each trial: the value tried, its verdict and the reason, the largest displacement of
+    a watched block and the fastest watched point's speed at the end."""
+    return _table(([k + 1, f"{r.get(key, 0.0):.4f}", "fails" if r.get("failed") else "holds",
+                    r.get("reason", ""), rd.length(r.get("displacement") or 0.0),
+                    f"{rd.number(r.get('velocity') or 0.0, 3)} m/s", r.get("status", "")]
+                   for k, r in enumerate(runs)),
+                  ["trial", label, "verdict", "why", "largest displacement", "velocity",
+                   "run"])
 
 
 def _seismic_section(doc: dict[str, Any]) -> str:
     runs = doc.get("runs") or []
     out = ["<h2 id='seismic'>Critical seismic coefficient</h2>"]
     if runs:
-        out.append(_table(([k + 1, f"{r.get('kh', 0.0):.4f}",
-                            "fails" if r.get("failed") else "holds",
-                            f"{r.get('mean_acceleration', 0.0):.3f}"]
-                           for k, r in enumerate(runs)),
-                          ["trial", "kh", "verdict", "mean acceleration (m/s²)"]))
+        out.append(_trials_table(runs, "kh", "kh"))
+    return "".join(out)
+
+
+def _le_section(le: dict[str, Any]) -> str:
+    """Limit equilibrium: the factor of safety, mode, and each plane the block rests on."""
+    fs = le.get("factor_of_safety")
+    out = ["<h2 id='le'>Limit equilibrium</h2>",
+           f"<p>FS = <b id='le-fs'>{'unbounded' if fs is None else f'{fs:.4f}'}</b>, "
+           f"{escape(str(le.get('mode', '')))} (the vector method, Hoek &amp; Bray; Low "
+           "1997)</p>"]
+    planes = le.get("planes") or []
+    if planes:
+        out.append(_table(([p.get("name"), f"{p.get('dip', 0):.1f}/"
+                            f"{p.get('dip_direction', 0):05.1f}",
+                            "free" if p.get("normal_force") is None
+                            else rd.force(p["normal_force"]),
+                            rd.angle(p.get("friction_angle", 0.0)),
+                            rd.stress(p.get("cohesion", 0.0)),
+                            rd.force(p.get("water_force", 0.0))] for p in planes),
+                          ["plane", "dip/dip direction (°)", "normal force", "φ", "c",
+                           "water force"]))
+    out += [f"<p class='muted'>{escape(str(n))}</p>" for n in le.get("notes") or []]
     return "".join(out)
 
 
@@ -470,7 +508,8 @@ def report_body(parts: ReportParts) -> str:
     summary, fos = docs.get("summary.json") or {}, docs.get("fos.json")
     warnings = [str(w) for w in dict.fromkeys(
         [*(summary.get("warnings") or []), *((fos or {}).get("warnings") or []),
-         *((docs.get("seismic.json") or {}).get("warnings") or [])])]
+         *((docs.get("seismic.json") or {}).get("warnings") or []),
+        *((docs.get("le.json") or {}).get("warnings") or [])])]
     s = [f"<h1>{escape(str(scene.get('name') or parts.title))} — "
          f"{escape(parts.process_title)}</h1>", _table(parts.header), conclusion(parts, warnings)]
     if summary:
@@ -479,6 +518,8 @@ def report_body(parts: ReportParts) -> str:
         s.append(_fos_section(fos))
     if "seismic.json" in docs:
         s.append(_seismic_section(docs["seismic.json"]))
+    if "le.json" in docs:
+        s.append(_le_section(docs["le.json"]))
     s += [_figure(src, caption) for caption, src in parts.figures.items()]
     s.append(_sweep_section(parts.sweep))
     s.append(_kinematics_section(parts.kinematics))
@@ -553,7 +594,7 @@ def report_html(job: JobRecord, root: str, job_dir: Path, scene_text: str,
     """The printable report of a finished job (its documents read from `job_dir`; `plots`:
     the names of its plots under /results/plots)."""
     docs = {}
-    for name in ("summary.json", "fos.json", "seismic.json", "blocks.json"):
+    for name in ("summary.json", "fos.json", "seismic.json", "le.json", "blocks.json"):
         path = job_dir / name
         if path.is_file():
             docs[name] = json.loads(path.read_text(encoding="utf-8"))

@@ -379,7 +379,7 @@ def sweep_part(job_dir: Path) -> dict[str, Any] | None:
     mode = (doc.get("spec") or {}).get("mode", "dda")
     aggs = {mode: doc.get(mode) or {}}
     if mode != "analytic" and doc.get("analytic"):
-        aggs["analytic (eq. 51)"] = doc["analytic"]
+        aggs["limit equilibrium"] = doc["analytic"]
     src = None
     if any((a.get("histogram") or {}).get("counts") for a in aggs.values()):
         from engine.results.plots import plot_fs_distribution

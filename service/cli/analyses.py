@@ -82,13 +82,18 @@ def cmd_sweep(args: argparse.Namespace) -> int:
     from service.sweep import run_sweep, spec_of_scene
 
     scene = json.loads(Path(args.scene).read_text(encoding="utf-8"))
-    one_model(build_model(Path(args.scene)), "a sweep")  # valid before any realisation
+    built = build_model(Path(args.scene))  # the scene must be valid before any realisation
+    one_model(built, "a sweep")
     section = _sweep_options(args, scene)
     if section is None:
         print("polydda sweep: give --friction-mean and --friction-sd, or --parameter, or the "
               "scene's sweep.parameters (or sweep.friction_angle)", file=sys.stderr)
         return EXIT_SCENE
     spec = spec_of_scene(dict(scene, sweep=section))  # SceneError: exit 2
+    if spec.mode == "analytic":  # limit equilibrium must apply (SceneError: exit 2)
+        from service.documents import le_result
+
+        le_result(built)
 
     if args.server is not None:
         return _sweep_on_server(args, scene, spec)

@@ -1,7 +1,7 @@
 """`polydda` command line: the parser and the entry point.
 
 Each subcommand is one `cmd_*` function in a module of this package (:mod:`.scenes`:
-blocks, contacts, validate, schema; :mod:`.runs`: run, fos, seismic; :mod:`.analyses`:
+blocks, contacts, validate, schema; :mod:`.runs`: run, fos, le, seismic; :mod:`.analyses`:
 kinematics, sweep; :mod:`.keyblocks`: keyblocks; :mod:`.orientations`: stereonet;
 :mod:`.results`: plot, view, report; :mod:`.remote`: serve, worker, submit), taking the
 parsed arguments and returning an exit code; add a command by writing one and registering it
@@ -115,6 +115,15 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--quiet", action="store_true", help="no progress output")
     p.set_defaults(func=_command("runs", "cmd_fos"))
 
+    p = sub.add_parser("le", help="limit equilibrium of a planar block or a two-plane wedge",
+                       description="the vector method (Hoek & Bray; Low 1997) on the scene's "
+                                   "one free block: cohesion, water, bolts and tendons, "
+                                   "seismic kh / kv, point loads; exit 2 saying why when it "
+                                   "does not apply")
+    p.add_argument("scene", help="scene JSON file")
+    p.add_argument("--json", action="store_true", help="print one JSON document")
+    p.set_defaults(func=_command("runs", "cmd_le"))
+
     p = sub.add_parser("seismic", help="critical (yield) seismic coefficient kh by bisection")
     p.add_argument("scene", help="scene JSON file (its 'seismic' gives azimuth and kv)")
     p.add_argument("--json", action="store_true", help="print one JSON document")
@@ -182,7 +191,8 @@ def build_parser() -> argparse.ArgumentParser:
                         "20000}' (Pa; angles in degrees); repeat for several")
     p.add_argument("--mode", choices=("dda", "analytic"),
                    help="dda: the engine's strength reduction per realisation; analytic: "
-                        "eq. 51 (two-joint wedge; friction and joint orientation only)")
+                        "limit equilibrium (a planar block or a two-plane wedge, with "
+                        "everything the scene has; refused, exit 2, where it does not apply)")
     p.add_argument("--out", required=True, metavar="DIR", help="folder of the sweep")
     p.add_argument("--workers", type=int, default=1, help="processes (default 1)")
     p.add_argument("--server", metavar="URL",

@@ -10,6 +10,7 @@ from pathlib import Path
 from typing import Any
 
 from engine.analyses.strength_reduction import (
+    QuasiStatic,
     TrialRun,
     critical_seismic_coefficient,
     factor_of_safety,
@@ -18,6 +19,7 @@ from engine.results.writer import ResultWriter
 from engine.step.simulation import STATUS_COMPLETED
 from engine.step.simulation import Progress as RunProgress
 from schemas.convert import BuildResult
+from schemas.errors import SceneError
 from schemas.scene import SCHEMA_VERSION
 from service import readable as rd
 from service.cli.common import (
@@ -175,8 +177,8 @@ def _trials(args: argparse.Namespace, label: str, what: str, tolerance: float,
         total = bisection_total(seen, tolerance, max_runs, relative_to)
         verdict = "fails" if r.failed else "holds"
         bar.update(len(seen), f"{what} = {r.factor:.4g} {verdict}", total=total)
-        bar.event(f"trial {len(seen)} of about {total}: {what} = {r.factor:.4g} {verdict} "
-                  f"(mean acceleration {r.mean_acceleration:.3f} m/s²)")
+        bar.event(f"trial {len(seen)} of about {total}: {what} = {r.factor:.4g} {verdict}: "
+                  f"{r.reason}")
 
     return bar, note
 
@@ -190,6 +192,8 @@ def cmd_fos(args: argparse.Namespace) -> int:
                         "lo")
     try:
         result = factor_of_safety(built.model, c, progress=note)
+    except QuasiStatic as exc:  # no trial could fail: refused, exit 2
+        raise SceneError([{"loc": "analysis.mode", "msg": str(exc)}]) from None
     finally:
         bar.close()
     doc = fos_document(result, built)
@@ -210,7 +214,9 @@ def fos_text(doc: dict[str, Any]) -> list[str]:
     bracket = fos_bracket(runs)
     how = (f"strength reduction, bisection on tan φ / F over {rd.plural(len(runs), 'trial run')}"
            + (f": holds at F = {bracket[0]:.4g}, fails at {bracket[1]:.4g}" if bracket else ""))
-    lines = [f"factor of safety {fs:.2f} ({how})"]
+    # a bound: no trial failed up to the largest factor (≥), or every one down to the least
+    sign = {"lower": "≥ ", "upper": "< "}.get(doc.get("bound") or "", "")
+    lines = [f"factor of safety {sign}{fs:.2f} ({how})"]
     phis = doc.get("critical_friction_angle")
     phis = phis if isinstance(phis, list) else [phis]
     names = doc.get("joint_materials") or []
@@ -232,6 +238,8 @@ def cmd_seismic(args: argparse.Namespace) -> int:
                         c.max_runs, "hi")
     try:
         result = critical_seismic_coefficient(built.model, c, progress=note)
+    except QuasiStatic as exc:  # no trial could fail: refused, exit 2
+        raise SceneError([{"loc": "analysis.mode", "msg": str(exc)}]) from None
     finally:
         bar.close()
     doc = seismic_document(result, built)
@@ -239,7 +247,8 @@ def cmd_seismic(args: argparse.Namespace) -> int:
         print_json(doc)
     else:
         bracket = fos_bracket(doc.get("runs") or [], key="kh")
-        print(f"critical seismic coefficient kh = {result.critical_coefficient:.3f} "
+        sign = {"lower": "≥ ", "upper": "< "}.get(result.bound or "", "")
+        print(f"critical seismic coefficient kh {sign or '= '}{result.critical_coefficient:.3f} "
               f"(horizontal force towards {result.azimuth_deg:03.0f}°, kv "
               f"{result.kv:g}; bisection over {rd.plural(len(result.runs), 'trial run')}"
               + (f": holds at kh = {bracket[0]:.4g}, fails at {bracket[1]:.4g})"
@@ -249,3 +258,18 @@ def cmd_seismic(args: argparse.Namespace) -> int:
         for w in doc.get("warnings", []):
             print(f"warning: {w}")
     return EXIT_OK if result.status == STATUS_COMPLETED else EXIT_RUN
+
+
+def cmd_le(args: argparse.Namespace) -> int:
+    """Limit equilibrium of the scene's one free block (planar or two-plane wedge, the
+    vector method); exit 2 naming why when it does not apply."""
+    from service.documents import le_document, le_result, le_text
+
+    built = load_scene(args.scene, quiet=args.json)
+    one_model(built, "limit equilibrium")
+    doc = le_document(le_result(built), built)
+    if args.json:
+        print_json(doc)
+    else:
+        print(le_text(doc))
+    return EXIT_OK

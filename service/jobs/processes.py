@@ -16,6 +16,7 @@ from typing import TYPE_CHECKING, Any, Literal
 
 from service.documents import (
     blocks_document,
+    dynamic_trials,
     finite,
     fos_controls,
     fos_document,
@@ -95,7 +96,7 @@ def _bisection_job(build: BuildResult, job_dir: Path, ctx: TaskContext, artifact
     """A bisection analysis as a job (factor of safety, critical seismic coefficient):
     progress per trial, cancel between trials with the trials so far kept in `artifact`,
     the analysis's document written atomically; `answer(result)` names its number."""
-    from engine.analyses.strength_reduction import TrialRun
+    from engine.analyses.strength_reduction import QuasiStatic, TrialRun
 
     runs: list[TrialRun] = []
 
@@ -103,13 +104,16 @@ def _bisection_job(build: BuildResult, job_dir: Path, ctx: TaskContext, artifact
         runs.append(r)
         verdict = "fails" if r.failed else "holds"
         ctx.report(100.0 * len(runs) / controls.max_runs, force=True, step=len(runs),
-                   message=f"trial {len(runs)}: {trial_label} {r.factor:.4g} {verdict}")
+                   message=f"trial {len(runs)}: {trial_label} {r.factor:.4g} {verdict}: "
+                           f"{r.reason}")
         if ctx.should_stop():
             raise Cancelled
 
     ctx.report(0.0, force=True, message="first trial running")
     try:
         result = analysis(build.model, controls, progress=progress)
+    except QuasiStatic as exc:  # refused at submission; a job from before says why here
+        return Outcome("failed", f"model problem: {exc}", MODEL)
     except Cancelled:
         write_json_atomic(job_dir / artifact, finite({
             "status": "cancelled", "runs": [r.__dict__ for r in runs],
@@ -193,12 +197,14 @@ def _sweep(build: BuildResult | None, scene_text: str, job_dir: Path,
     return Outcome("successful", f"{spec.mode}: {pof} realisations")
 
 
-def _single_model_check(analysis: str) -> Callable[[Any], None]:
-    """The check of a process that analyses one model: no stages (schemas.stage_checks)."""
+def _trial_check(analysis: str) -> Callable[[Any], None]:
+    """The check of a process of strength-reduction trials: one model (no stages,
+    schemas.stage_checks) analysed dynamically (a quasi-static scene is refused)."""
     def check(scene: Any) -> None:
         from schemas.stage_checks import refuse_stages
 
         refuse_stages(scene, analysis)
+        dynamic_trials(scene.analysis)
     return check
 
 
@@ -207,7 +213,37 @@ def _sweep_check(scene: Any) -> None:
     from service.sweep import spec_of_scene
 
     refuse_stages(scene, "a sweep")
-    spec_of_scene(scene.model_dump(mode="json", exclude_none=True))
+    spec = spec_of_scene(scene.model_dump(mode="json", exclude_none=True))
+    if spec.mode == "analytic":  # limit equilibrium must apply to the scene
+        from schemas.convert import build_model
+        from service.documents import le_result
+
+        le_result(build_model(scene))
+
+
+def _limit_equilibrium(build: BuildResult, scene_text: str, job_dir: Path,
+                       ctx: TaskContext) -> Outcome:
+    from schemas.errors import SceneError
+    from service.documents import le_document, le_result
+
+    try:
+        doc = le_document(le_result(build), build)
+    except SceneError as exc:  # checked at submission; a job from before says why here
+        return Outcome("failed", "; ".join(exc.lines()), MODEL)
+    write_json_atomic(job_dir / "le.json", doc)
+    ctx.report(100.0, force=True)
+    fs = doc["factor_of_safety"]
+    return Outcome("successful", f"factor of safety {'unbounded' if fs is None else f'{fs:.4g}'}"
+                                 f" ({doc['mode']})")
+
+
+def _limit_equilibrium_check(scene: Any) -> None:
+    from schemas.convert import build_model
+    from schemas.stage_checks import refuse_stages
+    from service.documents import le_result
+
+    refuse_stages(scene, "limit equilibrium")
+    le_result(build_model(scene))
 
 
 def _block_cutting(build: BuildResult, scene_text: str, job_dir: Path,
@@ -226,17 +262,30 @@ PROCESSES: dict[str, Process] = {p.id: p for p in (
             _simulation),
     Process("factor-of-safety", "Factor of safety (strength reduction)",
             "Divide the joints' strength by trial factors and find by bisection the factor "
-            "at which the watched blocks start to accelerate (the scene's "
-            "analysis.factor_of_safety: watched blocks, joint materials, times).",
+            "at which the watched blocks fail: each trial starts from the model settled "
+            "under its loads and fails when a watched block moves beyond the displacement "
+            "limit or keeps moving, holds once every watched block is at rest on stuck "
+            "contacts; every trial's displacement, velocity and verdict with its reason are "
+            "in the result (the scene's analysis.factor_of_safety: watched blocks, joint "
+            "materials, limit, times). A quasi-static scene is refused.",
             ("fos.json",), "fos.json", "factor_of_safety", "factor_of_safety",
-            _factor_of_safety, check=_single_model_check("the factor-of-safety search")),
+            _factor_of_safety, check=_trial_check("the factor-of-safety search")),
     Process("critical-seismic-coefficient", "Critical seismic coefficient",
             "Find by bisection on the horizontal pseudo-static coefficient kh (the scene's "
             "seismic azimuth and kv, full joint strengths) the kh at which the watched blocks "
-            "start to accelerate (the scene's analysis.critical_seismic_coefficient).",
+            "fail (the trials of the factor of safety, from the equilibrium at kh = 0; the "
+            "scene's analysis.critical_seismic_coefficient).",
             ("seismic.json",), "seismic.json", "critical_seismic_coefficient",
             "critical_seismic_coefficient", _critical_seismic,
-            check=_single_model_check("the critical seismic coefficient search")),
+            check=_trial_check("the critical seismic coefficient search")),
+    Process("limit-equilibrium", "Limit equilibrium (planar block, two-plane wedge)",
+            "The factor of safety of the scene's one free block on the planes it rests on by "
+            "the vector method (Hoek & Bray; Low 1997), with cohesion, water on the planes "
+            "and in a tension crack, bolts and tendons (active and passive), seismic kh / kv "
+            "and point loads; the failure mode (sliding on both planes, on one, lifting "
+            "off). A scene it does not apply to is refused at submission, saying why.",
+            ("le.json",), "le.json", "limit_equilibrium", "limit_equilibrium",
+            _limit_equilibrium, check=_limit_equilibrium_check),
     Process("block-cutting", "Block cutting",
             "Cut the domain by the joints and list the blocks (volume, centroid, vertices, "
             "faces); nothing is run.",
@@ -250,14 +299,15 @@ PROCESSES: dict[str, Process] = {p.id: p for p in (
     Process("sweep", "Monte Carlo sweep (probability of failure)",
             "Draw the scene's sweep.n realisations of the joints' friction angle from "
             "sweep.seed; find each one's factor of safety (the engine's strength reduction, "
-            "or eq. 51 for a two-joint wedge with mode 'analytic'); aggregate the "
-            "probability of failure, FS histogram and CDF and the sensitivity to φ, beside "
-            "eq. 51 over the same realisations. Progress counts realisations; a cancelled "
-            "job keeps the aggregate of those done. sweep.realisations makes a job one "
-            "share of a sweep; ?shares=K makes the job a parent of K such jobs spread over "
-            "the queue (progress, cancel and merged results of the whole); "
-            "realisation records are kept by sweep in the data directory, so a job "
-            "resubmitted after its worker died redoes none that were done.",
+            "or limit equilibrium with mode 'analytic', refused at submission when it does "
+            "not apply); aggregate the probability of failure, FS histogram and CDF and the "
+            "sensitivity to φ, beside limit equilibrium over the same realisations. "
+            "Progress counts realisations; a cancelled job keeps the aggregate of those "
+            "done. sweep.realisations makes a job one share of a sweep; ?shares=K makes the "
+            "job a parent of K such jobs spread over the queue (progress, cancel and merged "
+            "results of the whole); realisation records are kept by sweep in the data "
+            "directory, so a job resubmitted after its worker died redoes none that were "
+            "done.",
             ("sweep.json",), "sweep.json", "sweep", None, _sweep, check=_sweep_check),
 )}
 PROCESS_IDS: tuple[str, ...] = tuple(PROCESSES)
