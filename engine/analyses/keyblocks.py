@@ -3,9 +3,10 @@ each block exposed on an excavation's surface, whether it is removable, how it w
 under its weight (falling, sliding on one plane, sliding on two) and the limit-equilibrium
 factor of safety of that mode.
 
-This is the key-block LE this analysis needs until the shared limit-equilibrium module
-(issue 30, `engine.analyses.limit_equilibrium`) lands: :func:`mode_and_factor` is the one
-place to switch to it. Dry, no bolts, no seismic load: weight only, Mohr-Coulomb joints.
+Removability is block theory's own (a linear program); the mode and its factor of safety are
+the vector method of :mod:`engine.analyses.limit_equilibrium` (:func:`solve_modes`) on the
+block's contact planes under its weight alone (dry, no bolts, no seismic load: Mohr-Coulomb
+joints), so key blocks and `polydda le` count a plane's strength the same way.
 
 A block's contact planes are its distinct face planes that are not on the excavation's
 surface; `n` is a plane's outward normal (from the block into its neighbour). A motion
@@ -18,19 +19,21 @@ surface; `n` is a plane's outward normal (from the block into its neighbour). A 
 - sliding on planes i and j: along their intersection `I` (`I · r > 0`), separating from
   the others, both pressed (N_i, N_j > 0 from `W (r − (r·I) I) = N_i n_i + N_j n_j`);
   FS = (N_i tan φ_i + N_j tan φ_j + c_i A_i + c_j A_j) / (W r·I).
-The mode with the lowest FS is the block's.
+The mode with the lowest FS is the block's ("stable" when none is admissible or nothing
+drives the block).
 """
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 
 import numpy as np
 from scipy.optimize import linprog
 
+from engine.analyses.le_model import ContactPlane, NotApplicable
+from engine.analyses.limit_equilibrium import MODE_NAMES, solve_modes
 from engine.geometry.polyhedron import Polyhedron
-
-_TOL = 1e-9
 
 
 @dataclass(frozen=True)
@@ -92,45 +95,25 @@ def removable(planes: list[Plane]) -> bool:
     return best > 1e-9
 
 
-def _separates(d: np.ndarray, planes: list[Plane], skip: tuple[int, ...]) -> bool:
-    return all(p.normal @ d <= _TOL for k, p in enumerate(planes) if k not in skip)
-
-
 def mode_and_factor(planes: list[Plane], weight: float, r: np.ndarray
                     ) -> tuple[str, list[int], float]:
     """The block's mode under its weight `weight` N along the unit direction `r`, the tags
-    of the planes it slides on, and its factor of safety."""
-    if _separates(r, planes, ()):
+    of the planes it slides on, and its factor of safety (limit_equilibrium.solve_modes:
+    its planes' normals point into the block)."""
+    contact = [ContactPlane(normal=-p.normal, point=np.zeros(3), area=p.area,
+                            outline=np.zeros((0, 3)), block=-1, face_tag=p.tag,
+                            joint_material=-1, tan_phi=p.tan_phi, cohesion=p.cohesion,
+                            tensile_strength=0.0) for p in planes]
+    try:
+        best, _ = solve_modes(contact, weight * np.asarray(r, float), np.zeros(3))
+    except NotApplicable:  # no mode is admissible: the planes hold it
+        return "stable", [], float("inf")
+    if not best.planes:
         return "falling", [], 0.0
-    best: tuple[str, list[int], float] = ("stable", [], float("inf"))
-    for i, p in enumerate(planes):
-        rn = float(r @ p.normal)
-        s = r - rn * p.normal
-        if rn > _TOL and np.linalg.norm(s) > _TOL and _separates(s, planes, (i,)):
-            fs = (weight * rn * p.tan_phi + p.cohesion * p.area) / (
-                weight * float(np.linalg.norm(s)))
-            if fs < best[2]:
-                best = ("sliding on one plane", [p.tag], fs)
-    for i, p in enumerate(planes):
-        for j in range(i + 1, len(planes)):
-            q = planes[j]
-            line = np.cross(p.normal, q.normal)
-            if np.linalg.norm(line) < 1e-9:
-                continue
-            line /= np.linalg.norm(line)
-            line *= np.sign(line @ r) or 1.0
-            if line @ r <= _TOL or not _separates(line, planes, (i, j)):
-                continue
-            perp = weight * (r - (r @ line) * line)
-            m = np.column_stack([p.normal, q.normal])
-            (ni, nj), *_ = np.linalg.lstsq(m, perp, rcond=None)
-            if ni <= 0 or nj <= 0:
-                continue
-            fs = (ni * p.tan_phi + nj * q.tan_phi + p.cohesion * p.area
-                  + q.cohesion * q.area) / (weight * float(line @ r))
-            if fs < best[2]:
-                best = ("sliding on two planes", [p.tag, q.tag], fs)
-    return best
+    if not math.isfinite(best.factor_of_safety):  # nothing drives it along any mode
+        return "stable", [], float("inf")
+    return (MODE_NAMES[len(best.planes)], [planes[k].tag for k in best.planes],
+            float(best.factor_of_safety))
 
 
 def key_blocks(polys: list[Polyhedron], density: np.ndarray, gravity: np.ndarray,
