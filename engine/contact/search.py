@@ -11,6 +11,7 @@ from scipy.spatial import ConvexHull, QhullError
 
 from engine.contact.constraints import OPEN, ContactSet, assign_joint_materials
 from engine.contact.detection import detect_contacts
+from engine.contact.patches import patch_ids
 from engine.dynamics.motion import current_vertices, mass_properties, point_displacements
 from engine.dynamics.state import State
 from engine.dynamics.system import BlockSystem
@@ -78,10 +79,7 @@ def contact_areas(contacts: ContactSet) -> np.ndarray:
     out = np.zeros(len(contacts))
     if not len(contacts):
         return out
-    key = np.column_stack([contacts.block_i, contacts.block_j,
-                           np.round(contacts.normal * 1e6)]).astype(np.int64)
-    _, group = np.unique(key, axis=0, return_inverse=True)
-    group = group.ravel()
+    group = patch_ids(contacts)
     for g in np.unique(group):
         idx = np.flatnonzero(group == g)
         if len(idx) < 3:

@@ -37,3 +37,10 @@ class StepResult:
     #: of `numerical_dissipation`, what the springs lost between the steps (J; re-detected
     #: shallower, on another plane or not at all: `open_close.reseat_loss`)
     reseat_dissipation: float = 0.0
+    #: the blocks' velocities at the step's end `(n, 12)` when the solver applied an impact
+    #: law (None: DDA's `2 d / Δt − v0`)
+    velocity: np.ndarray | None = None
+    #: contact forces `(c, 3)` N on block i (world axes), carried to the next step
+    force: np.ndarray | None = None
+    #: energy (J) the contacts store at the step's end (None: the penalty springs')
+    contact_energy: float | None = None

@@ -24,7 +24,7 @@ def _row_keys(key: np.ndarray) -> np.ndarray:
 
 
 #: the arrays of a :class:`ContactMemory`, in its field order
-_MEMORY_FIELDS = ("key", "mode", "shear", "tangent", "broken", "gap")
+_MEMORY_FIELDS = ("key", "mode", "shear", "tangent", "broken", "gap", "force")
 
 
 @dataclass
@@ -33,7 +33,9 @@ class ContactMemory:
 
     One row per closed contact, sorted by key: `key (m, 4)`, `mode (m,)`, accumulated
     tangential displacement `shear (m, 3)` m, sliding direction `tangent (m, 3)`,
-    `broken (m,)` (cohesion and tensile strength lost) and the end-of-step `gap (m,)` m.
+    `broken (m,)` (cohesion and tensile strength lost), the end-of-step `gap (m,)` m and
+    the contact `force (m, 3)` N on block i (the complementarity solve's warm start; zero
+    from the open-close iteration).
     """
 
     key: np.ndarray = field(default_factory=lambda: np.zeros((0, 4), dtype=np.int64))
@@ -42,8 +44,11 @@ class ContactMemory:
     tangent: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
     broken: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=bool))
     gap: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    force: np.ndarray | None = None
 
     def __post_init__(self) -> None:
+        if self.force is None:
+            self.force = np.zeros((len(self.key), 3))
         order = np.argsort(_row_keys(self.key), kind="stable")
         for name in _MEMORY_FIELDS:
             setattr(self, name, getattr(self, name)[order])
@@ -172,7 +177,8 @@ def load_state(path: str | os.PathLike[str]) -> State:
     with np.load(path, allow_pickle=False) as z:
         meta = json.loads(str(z["meta"]))
         arrays = {name: z[name] if name in z.files else None for name in _ARRAYS}
-        memory = ContactMemory(**{name: z[f"memory_{name}"] for name in _MEMORY_FIELDS})
+        memory = ContactMemory(**{name: z[f"memory_{name}"] for name in _MEMORY_FIELDS
+                                  if f"memory_{name}" in z.files})
     diagnostics = Diagnostics(**meta["diagnostics"])
     return State(**arrays, **{name: meta[name] for name in _SCALARS}, memory=memory,
                  energies=meta["energies"], diagnostics=diagnostics)

@@ -67,7 +67,8 @@ def _memory(system: BlockSystem, res: StepResult) -> ContactMemory:
     # a contact that slid or ended open has lost its bond (cohesion, tensile strength)
     return ContactMemory(key=cs.key[keep], mode=cs.mode[keep], shear=res.shear[keep],
                          tangent=tangent, broken=broken[keep] | (cs.mode[keep] != LOCKED),
-                         gap=res.gap1[keep])
+                         gap=res.gap1[keep],
+                         force=None if res.force is None else res.force[keep])
 
 
 def _penetrations(system: BlockSystem, state: State, res: StepResult
@@ -105,15 +106,16 @@ def _advance_bolts(system: BlockSystem, state: State, after: State, d: np.ndarra
 
 def advance(system: BlockSystem, state: State, res: StepResult, dt: float) -> State:
     """The state after the converged step `res` of `dt` s: blocks moved with the exact
-    rotation, velocities `2 d / Δt − v0` (times the dynamic ratio; the kinetic energy that
-    removes counts as the integrator's dissipation), stresses, energies, the contacts'
+    rotation, velocities `2 d / Δt − v0` or the ones the contact solve's impact law gave
+    (times the dynamic ratio; the kinetic energy that removes counts as the integrator's
+    dissipation), stresses, energies, the contacts'
     memory and the time (`dt` and `last_dt` are the caller's). The state `state` is left
     as it was, so a step can be redone from it."""
     d = res.d
     centroid, affine, rotation = state.centroid.copy(), state.affine.copy(), \
         state.rotation.copy()
     move_blocks(d, centroid, affine, rotation)
-    v1 = 2.0 * d / dt - state.velocity
+    v1 = 2.0 * d / dt - state.velocity if res.velocity is None else res.velocity.copy()
     v1[system.fixed] = 0.0
     stress = state.stress
     if system.elastic:
@@ -123,7 +125,9 @@ def advance(system: BlockSystem, state: State, res: StepResult, dt: float) -> St
         centroid=centroid, affine=affine, rotation=rotation, velocity=v1, stress=stress,
         time=state.time + dt, step=state.step + 1, dt=state.dt, last_dt=state.last_dt,
         memory=_memory(system, res), last_d=d, deepest=deepest,
-        energies=_work(system, state, res, dt), contact_energy=spring_energy(system, res),
+        energies=_work(system, state, res, dt),
+        contact_energy=spring_energy(system, res) if res.contact_energy is None
+        else res.contact_energy,
         diagnostics=diagnostics)
     if system.bolts is not None:
         _advance_bolts(system, state, after, d)

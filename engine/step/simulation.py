@@ -1,10 +1,10 @@
 """DDA time stepping: the orchestrator of a run.
 
-A step is the paper's pipeline (THEORY.md "One step"): find contacts → initial modes (Table
-1, inherited modes) → open-close iteration (Table 2) → checks (displacement limit,
-penetration) → advance (exact rotation) → energy watchdog → record. Each stage is a module
-of its own: :mod:`engine.contact.search`, :mod:`engine.contact.open_close`,
-:mod:`engine.step.stepping`, :mod:`engine.step.advance`, :mod:`engine.contact.damping`,
+A step is the paper's pipeline (THEORY.md "One step"): find contacts → the contact solution
+(the open-close iteration of Tables 1 and 2, or the complementarity solve) → checks
+(displacement limit, penetration) → advance (exact rotation) → settle rings and rebounds →
+energy watchdog → record. Each stage is a module of its own: :mod:`engine.contact.search`,
+:mod:`engine.contact.solvers`, :mod:`engine.step.stepping`, :mod:`engine.step.advance`,
 :mod:`engine.step.energy`, :mod:`engine.step.output`. When an attempt fails, Δt is cut and
 the step redone; below the smallest allowed time step the run stops with a clear status and
 keeps what was recorded. Constants live in a :class:`BlockSystem`, everything that changes
@@ -21,10 +21,9 @@ from typing import Any
 
 import numpy as np
 
-from engine.contact.damping import damp_contacts
-from engine.contact.open_close import initial_modes, open_close_iteration
 from engine.contact.search import find_contacts
 from engine.contact.solution import StepResult
+from engine.contact.solvers import settle_contacts, solve_contacts
 from engine.dynamics.state import State, initial_state, load_state, save_state
 from engine.dynamics.system import BlockSystem, build_system
 from engine.model import Model
@@ -95,13 +94,11 @@ class Simulation:
         while True:
             try:
                 if res is None:
-                    start = initial_modes(system, state, contacts, attempt.dt)
-                    res = open_close_iteration(system, state, contacts, areas, start,
-                                               attempt.dt)
+                    res = solve_contacts(system, state, contacts, areas, attempt.dt)
                 stepping.check(system, res, attempt)
                 clock = _time.perf_counter()
                 after = advance(system, state, res, attempt.dt)
-                after = damp_contacts(system, state, res, after, attempt.dt)
+                after = settle_contacts(system, state, res, after, attempt.dt)
                 energy.check_step(system, state, after)
                 break
             except stepping.SearchWider:
