@@ -114,6 +114,12 @@ class AnalysisControls:
     #: restitution of an impact (the complementarity solve's impact law): the parting
     #: normal velocity is `e` times the approach velocity; 0 is a plastic impact
     restitution: float = 0.0
+    #: sleeping (complementarity solve): a block whose points all move slower than
+    #: `sleep_velocity` m/s for `sleep_time` s, with every contact stuck inside its friction
+    #: (and tensile) capacity by a margin, leaves the solve until a contact force on it
+    #: changes (0: never sleep)
+    sleep_velocity: float = 1e-4
+    sleep_time: float = 0.05
 
 
 @dataclass(frozen=True)

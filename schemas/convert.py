@@ -702,6 +702,8 @@ def build_model(scene: Scene | str | Path | dict[str, Any]) -> BuildResult:
         contact_solver=a.contact_solver,
         contact_tolerance=a.contact_tolerance,
         restitution=a.restitution,
+        sleep_velocity=a.sleep_velocity,
+        sleep_time=a.sleep_time,
     )
     default_jm = jmat_names.index(scene.default_joint_material)
     model = Model(

@@ -612,6 +612,14 @@ class AnalysisSpec(_Model):
         _CONTROLS.restitution,
         description="complementarity solve: parting / approach normal velocity of an "
                     "impact (0: plastic, the blocks stay together)")
+    sleep_velocity: Annotated[float, Field(ge=0)] = Field(
+        _CONTROLS.sleep_velocity,
+        description="m/s, complementarity solve: a block whose points all move slower than "
+                    "this for sleep_time, every contact stuck with a margin, sleeps (leaves "
+                    "the solve, contact forces kept) until a contact force on it changes; "
+                    "0: never")
+    sleep_time: Annotated[float, Field(gt=0)] = Field(
+        _CONTROLS.sleep_time, description="s a block must stay quiet before it sleeps")
     factor_of_safety: FactorOfSafetySpec | None = None
     critical_seismic_coefficient: CriticalSeismicSpec | None = None
 

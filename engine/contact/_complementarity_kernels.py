@@ -141,10 +141,11 @@ def disc_qp(w00: float, w01: float, w11: float, c0: float, c1: float,
 
 @njit(cache=True)
 def local_solve(w: np.ndarray, q: np.ndarray, bn: float, mu: float, tension: float,
-                cohesion: float, r: np.ndarray, out: np.ndarray) -> None:
+                cohesion: float, r: np.ndarray, out: np.ndarray, alternations: int) -> None:
     """One contact's problem `u = W r + q` under its law (module docstring); `r` the
     current guess, the answer into `out`. Stuck is tried first (W r = (bn − q_n, −q_t));
-    else the normal and tangential sub-problems alternate, each solved exactly."""
+    else the normal and tangential sub-problems alternate, each solved exactly, at most
+    `alternations` times (the sweeps around it iterate anyway)."""
     qn = q[0] - bn
     if tension <= 0.0 and cohesion <= 0.0 and qn >= 0.0:
         out[0] = 0.0
@@ -169,7 +170,7 @@ def local_solve(w: np.ndarray, q: np.ndarray, bn: float, mu: float, tension: flo
         out[2] = s2
         return
     rn, r1, r2 = max(r[0], -tension), r[1], r[2]
-    for it in range(200):
+    for it in range(alternations):
         rn_new = max(-(qn + m01 * r1 + m02 * r2) / m00, -tension)
         rad = cohesion + mu * max(rn_new, 0.0)
         t1, t2 = disc_qp(m11, m12, m22, q[1] + m10 * rn_new, q[2] + m20 * rn_new, rad)
@@ -196,7 +197,7 @@ def _contact(c: int, bi: np.ndarray, bj: np.ndarray, hi: np.ndarray, hj: np.ndar
              b_i: np.ndarray, b_j: np.ndarray, w: np.ndarray, bn: np.ndarray,
              mu: np.ndarray, tension: np.ndarray, cohesion: np.ndarray, r: np.ndarray,
              x: np.ndarray, u: np.ndarray, q: np.ndarray, old: np.ndarray,
-             out: np.ndarray) -> float:
+             out: np.ndarray, alternations: int) -> float:
     """Solve contact c's local problem against the current `x` and update its blocks;
     the change's energy `Δrᵀ W Δr`."""
     a, b = bi[c], bj[c]
@@ -213,7 +214,7 @@ def _contact(c: int, bi: np.ndarray, bj: np.ndarray, hi: np.ndarray, hj: np.ndar
     for k in range(3):
         q[k] = u[k] - (w[c, k, 0] * r[c, 0] + w[c, k, 1] * r[c, 1] + w[c, k, 2] * r[c, 2])
         old[k] = r[c, k]
-    local_solve(w[c], q, bn[c], mu[c], tension[c], cohesion[c], old, out)
+    local_solve(w[c], q, bn[c], mu[c], tension[c], cohesion[c], old, out, alternations)
     d0, d1, d2 = out[0] - old[0], out[1] - old[1], out[2] - old[2]
     if d0 == 0.0 and d1 == 0.0 and d2 == 0.0:
         return 0.0
@@ -291,11 +292,6 @@ def _moved(x: np.ndarray, y: np.ndarray, radius: np.ndarray) -> float:
     return out
 
 
-#: passes over one patch's points in a row before the sweep moves on (a rigid face's stuck
-#: corners are redundant: point by point, Gauss–Seidel crawls along their null space)
-PATCH_PASSES = 50
-
-
 # the sweep loop (patches in the given order, reversed every other sweep, each solved to
 # convergence in place, then the bolt springs) and its convergence test belong together:
 # split, they would pass ~25 arrays around
@@ -306,16 +302,18 @@ def nsgs(order: np.ndarray, pptr: np.ndarray, bi: np.ndarray, bj: np.ndarray,
          r: np.ndarray, x: np.ndarray, kmat: np.ndarray, xfree: np.ndarray, li: np.ndarray,
          lj: np.ndarray, gi: np.ndarray, gj: np.ndarray, ci: np.ndarray, cj: np.ndarray,
          lw: np.ndarray, lp: np.ndarray, f: np.ndarray, radius: np.ndarray, tol: float,
-         floor: float, slack: float, max_sweeps: int) -> tuple[int, float]:
+         floor: float, max_sweeps: int, passes: int, alternations: int
+         ) -> tuple[int, float]:
     """Non-smooth Gauss–Seidel over the contacts' patches (`order[pptr[p]:pptr[p + 1]]`:
     the points of one block pair on one plane) and the bolt springs between free blocks,
     keeping `x = K⁻¹(F + Σ Hᵀ r)` current. Converged when the estimated error of `x`
     (the sweep's change over 1 − its contraction rate) is below `tol` of `x − xfree` in K's
-    energy norm (scale-free, and blind to force redistributions that move nothing), when no
-    block point moved more than `floor` in the sweep, or when the contact law holds to within
-    `slack` (a length below the model's geometric resolution, :func:`law_violation`: rigid
-    blocks wedged on sliding joints can leave a Gauss–Seidel crawling at nanometres).
-    Returns (sweeps, error estimate); sweeps < 0: not converged within `max_sweeps`."""
+    energy norm (scale-free, and blind to force redistributions that move nothing), or when
+    no block point moved more than `floor` in the sweep.
+    Each patch is swept up to `passes` times in a row before the sweep moves on (a rigid
+    face's stuck corners are redundant: point by point, Gauss–Seidel crawls along their null
+    space). Returns (sweeps, error estimate); sweeps < 0: not converged within
+    `max_sweeps`."""
     npatch = pptr.shape[0] - 1
     u = np.empty(3)
     q = np.empty(3)
@@ -329,11 +327,11 @@ def nsgs(order: np.ndarray, pptr: np.ndarray, bi: np.ndarray, bj: np.ndarray,
         for pp in range(npatch):
             p = npatch - 1 - pp if sweep % 2 == 0 else pp
             first = 0.0
-            for it in range(PATCH_PASSES):
+            for it in range(passes):
                 e = 0.0
                 for kk in range(pptr[p], pptr[p + 1]):
                     e += _contact(order[kk], bi, bj, hi, hj, b_i, b_j, w, bn, mu, tension,
-                                  cohesion, r, x, u, q, old, out)
+                                  cohesion, r, x, u, q, old, out, alternations)
                 if it == 0:
                     first = e
                 if e <= 1e-16 * first or pptr[p + 1] - pptr[p] == 1:
@@ -348,9 +346,6 @@ def nsgs(order: np.ndarray, pptr: np.ndarray, bi: np.ndarray, bj: np.ndarray,
         est = eta / max(1.0 - min(rate, 0.999), 1e-3) if rate < 1.0 else 1e3 * eta
         # one sweep tells no contraction rate: it converges alone only by moving nothing
         if (est < tol and sweep > 1) or _moved(x, start, radius) <= floor:
-            return sweep, est
-        if sweep > 1 and law_violation(bi, bj, hi, hj, x, r, bn, mu, tension,
-                                       cohesion) <= slack:
             return sweep, est
     return -max_sweeps, est
 

@@ -24,7 +24,7 @@ def _row_keys(key: np.ndarray) -> np.ndarray:
 
 
 #: the arrays of a :class:`ContactMemory`, in its field order
-_MEMORY_FIELDS = ("key", "mode", "shear", "tangent", "broken", "gap", "force")
+MEMORY_FIELDS = ("key", "mode", "shear", "tangent", "broken", "gap", "force")
 
 
 @dataclass
@@ -50,7 +50,7 @@ class ContactMemory:
         if self.force is None:
             self.force = np.zeros((len(self.key), 3))
         order = np.argsort(_row_keys(self.key), kind="stable")
-        for name in _MEMORY_FIELDS:
+        for name in MEMORY_FIELDS:
             setattr(self, name, getattr(self, name)[order])
         self._sorted = _row_keys(self.key)
 
@@ -105,6 +105,9 @@ class Diagnostics:
     max_energy_created: float = 0.0
     energy_scale: float = 0.0
 
+    #: blocks woken from sleep, and steps redone to wake them (engine.step.sleep)
+    wakes: int = 0
+
     def tick(self, phase: str, since: float) -> float:
         """Add the wall time since `since` (perf_counter) to `phase`; return now."""
         now = _time.perf_counter()
@@ -144,9 +147,19 @@ class State:
     bolt_plastic: np.ndarray | None = None
     bolt_shear: np.ndarray | None = None
     bolt_status: np.ndarray | None = None
+    #: blocks asleep `(n,)` (out of the solve, at rest with their contact forces kept;
+    #: None: all awake) and how long each has been quiet `(n,)` s (engine.step.sleep)
+    asleep: np.ndarray | None = None
+    quiet: np.ndarray | None = None
+    #: each sleeping block's change of contact resultant since it fell asleep `(n, 6)` N
+    drift: np.ndarray | None = None
     diagnostics: Diagnostics = field(default_factory=Diagnostics)
     #: values derived from this state, computed once (not saved)
     cache: dict[str, Any] = field(default_factory=dict, repr=False, compare=False)
+
+    def awake(self, fixed: np.ndarray) -> np.ndarray:
+        """The blocks that move in the next step `(n,)`: free and not asleep."""
+        return ~fixed if self.asleep is None else ~fixed & ~self.asleep
 
 
 def initial_state(centroid: np.ndarray, velocity: np.ndarray, dt: float) -> State:
@@ -158,14 +171,14 @@ def initial_state(centroid: np.ndarray, velocity: np.ndarray, dt: float) -> Stat
 
 
 _ARRAYS = ("centroid", "affine", "rotation", "velocity", "stress", "last_d", "deepest",
-           "bolt_plastic", "bolt_shear", "bolt_status")
+           "bolt_plastic", "bolt_shear", "bolt_status", "asleep", "quiet", "drift")
 _SCALARS = ("time", "step", "dt", "last_dt", "contact_energy")
 
 
 def save_state(state: State, path: str | os.PathLike[str]) -> None:
     """Write `state` to `path` (a `.npz` file of plain arrays; floats kept bit for bit)."""
     arrays = {name: getattr(state, name) for name in _ARRAYS if getattr(state, name) is not None}
-    arrays.update({f"memory_{name}": getattr(state.memory, name) for name in _MEMORY_FIELDS})
+    arrays.update({f"memory_{name}": getattr(state.memory, name) for name in MEMORY_FIELDS})
     meta = {name: getattr(state, name) for name in _SCALARS}
     meta.update(energies=state.energies, diagnostics=dataclasses.asdict(state.diagnostics))
     with open(path, "wb") as fh:  # np.savez would add ".npz" to a name without it
@@ -177,7 +190,7 @@ def load_state(path: str | os.PathLike[str]) -> State:
     with np.load(path, allow_pickle=False) as z:
         meta = json.loads(str(z["meta"]))
         arrays = {name: z[name] if name in z.files else None for name in _ARRAYS}
-        memory = ContactMemory(**{name: z[f"memory_{name}"] for name in _MEMORY_FIELDS
+        memory = ContactMemory(**{name: z[f"memory_{name}"] for name in MEMORY_FIELDS
                                   if f"memory_{name}" in z.files})
     diagnostics = Diagnostics(**meta["diagnostics"])
     return State(**arrays, **{name: meta[name] for name in _SCALARS}, memory=memory,

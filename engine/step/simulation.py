@@ -2,8 +2,9 @@
 
 A step is the paper's pipeline (THEORY.md "One step"): find contacts → the contact solution
 (the open-close iteration of Tables 1 and 2, or the complementarity solve) → checks
-(displacement limit, penetration) → advance (exact rotation) → settle rings and rebounds →
-energy watchdog → record. Each stage is a module of its own: :mod:`engine.contact.search`,
+(displacement limit, penetration) → wake sleeping blocks whose loads changed → advance
+(exact rotation) → settle rings and rebounds → put quiet blocks to sleep → energy watchdog →
+record. Each stage is a module of its own: :mod:`engine.contact.search`,
 :mod:`engine.contact.solvers`, :mod:`engine.step.stepping`, :mod:`engine.step.advance`,
 :mod:`engine.step.energy`, :mod:`engine.step.output`. When an attempt fails, Δt is cut and
 the step redone; below the smallest allowed time step the run stops with a clear status and
@@ -28,7 +29,7 @@ from engine.dynamics.state import State, initial_state, load_state, save_state
 from engine.dynamics.system import BlockSystem, build_system
 from engine.model import Model
 from engine.status import STATUS_CANCELLED, STATUS_COMPLETED, STATUS_FAILED, StepFailure
-from engine.step import energy, output, stepping
+from engine.step import energy, output, sleep, stepping
 from engine.step.advance import advance
 from engine.step.frame import Frame, Recorder
 
@@ -96,11 +97,17 @@ class Simulation:
                 if res is None:
                     res = solve_contacts(system, state, contacts, areas, attempt.dt)
                 stepping.check(system, res, attempt)
+                drift = sleep.check_wake(system, state, res)
                 clock = _time.perf_counter()
                 after = advance(system, state, res, attempt.dt)
                 after = settle_contacts(system, state, res, after, attempt.dt)
+                sleep.update(system, res, after, attempt.dt, drift)
                 energy.check_step(system, state, after)
                 break
+            except sleep.Wake:  # blocks woke: the step again with them in it
+                contacts, areas = find_contacts(system, state,
+                                                stepping.reach(system, state, attempt))
+                res = None
             except stepping.SearchWider:
                 wider, areas_wider = find_contacts(system, state,
                                                    stepping.reach(system, state, attempt))
