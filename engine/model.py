@@ -118,7 +118,7 @@ class AnalysisControls:
     #: `sleep_velocity` m/s for `sleep_time` s, with every contact stuck inside its friction
     #: (and tensile) capacity by a margin, leaves the solve until a contact force on it
     #: changes (0: never sleep)
-    sleep_velocity: float = 1e-4
+    sleep_velocity: float = 1e-3
     sleep_time: float = 0.05
 
 

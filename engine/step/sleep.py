@@ -1,15 +1,18 @@
 """Sleeping blocks: model no more of a scene than moves (complementarity solve only).
 
-A block sleeps when all its points have moved slower than `sleep_velocity` for `sleep_time`
-and every one of its contacts holds with a margin (stuck, its shear force within
-`1 − SLEEP_MARGIN` of its friction rim, a bond's pull within it of its tensile capacity):
-a block near its limit (a slope at FS 1.02 under a load that creeps up) never sleeps, only
-one that rests. A sleeping block leaves the solve — it is fixed for its awake neighbours,
-its velocity is zero, its contacts keep their forces (and bonds) — and its pairs with other
-sleeping or fixed blocks are not searched. It wakes when the contacts its awake neighbours
+An island of blocks (free blocks joined by contacts) sleeps when all their points have
+moved slower than `sleep_velocity` for `sleep_time` (their velocities, and each step's
+displacement over Δt: quasi-static steps zero the velocity) and every contact holds with a
+margin (stuck, its shear force within SLEEP_MARGIN of its friction rim and below it by
+twice the wake threshold): a block near its limit (a slope at FS 1.02 under a load that
+creeps up) never sleeps, only one that rests. A sleeping block leaves the solve — it is
+fixed for its awake neighbours, its velocity is zero, its contacts keep their forces (and
+bonds) — and its pairs with other sleeping or fixed blocks are not searched (nor recorded
+in a frame's contacts while they sleep). It wakes when the contacts its awake neighbours
 press on it have changed its resultant force or moment, since it fell asleep, by more than
 WAKE_RATIO of its weight (a block lands on it, a neighbour slides off it, a load creeps);
-the step is then solved again with it awake, so the wake costs no motion. Blocks with bolts,
+the step is then solved again with it awake, so the wake costs no motion. Blocks with
+bolts, deformable blocks (their stresses relax slower than a rigid block comes to rest),
 scenes with water (whose pressures follow the neighbours) and scenes under ground motion
 never sleep.
 """
@@ -17,6 +20,8 @@ never sleep.
 from __future__ import annotations
 
 import numpy as np
+from scipy.sparse import coo_matrix
+from scipy.sparse.csgraph import connected_components
 
 from engine.contact.constraints import LOCKED
 from engine.contact.solution import StepResult
@@ -28,7 +33,7 @@ from engine.dynamics.system import BlockSystem
 SLEEP_MARGIN = 0.05
 #: a sleeping block wakes when its resultant contact force (moment about its centroid, over
 #: its radius) changes by more than this fraction of its weight
-WAKE_RATIO = 1e-3
+WAKE_RATIO = 1e-2
 
 
 class Wake(Exception):
@@ -39,7 +44,8 @@ def enabled(system: BlockSystem) -> bool:
     """Whether blocks of this run may sleep."""
     c = system.controls
     return (c.contact_solver == "complementarity" and c.sleep_velocity > 0
-            and system.water is None and system.model.ground_motion is None)
+            and not system.elastic and system.water is None
+            and system.model.ground_motion is None)
 
 
 def _resultants(system: BlockSystem, state: State, block: np.ndarray, point: np.ndarray,
@@ -70,8 +76,7 @@ def check_wake(system: BlockSystem, state: State, res: StepResult) -> np.ndarray
     drift = (np.zeros((system.n, 6)) if state.drift is None else state.drift.copy())
     drift += _resultants(system, state, cs.block_i[on_i], cs.point_i[on_i], change[on_i])
     drift += _resultants(system, state, cs.block_j[on_j], cs.point_j[on_j], -change[on_j])
-    weight = system.density * mass_properties(system, state)[0] * float(
-        np.linalg.norm(system.gravity))
+    weight = _weights(system, state)
     woken = asleep & (np.linalg.norm(drift, axis=1) > WAKE_RATIO * weight)
     if np.any(woken):
         state.asleep = asleep & ~woken
@@ -83,23 +88,56 @@ def check_wake(system: BlockSystem, state: State, res: StepResult) -> np.ndarray
     return drift
 
 
-def _holding(system: BlockSystem, res: StepResult) -> np.ndarray:
-    """Blocks `(n,)` whose contacts all hold with SLEEP_MARGIN: stuck, the shear force
-    within the margin of the friction rim, a pull within it of the tensile capacity."""
+def _speed(system: BlockSystem, v: np.ndarray) -> np.ndarray:
+    """The fastest point's speed bound of each block `(n,)` m/s for velocities `v (n, d)`:
+    translation, rotation times the radius, strain rate times the diameter."""
+    return (np.linalg.norm(v[:, :3], axis=1) + system.radius * np.linalg.norm(v[:, 3:6], axis=1)
+            + 2.0 * system.radius * np.abs(v[:, 6:]).max(axis=1, initial=0.0))
+
+
+def _weights(system: BlockSystem, state: State) -> np.ndarray:
+    """Each block's weight `(n,)` N (its mass times |g|; a floor for weightless scenes)."""
+    g = max(float(np.linalg.norm(system.gravity)), 1.0)
+    return system.density * mass_properties(system, state)[0] * g
+
+
+def _holding(system: BlockSystem, state: State, res: StepResult) -> np.ndarray:
+    """Blocks `(n,)` whose contacts all hold with a margin: stuck, the shear force within
+    SLEEP_MARGIN of the friction rim and, so that no change too small to wake a block can
+    make one of its contacts slip, below it by twice the wake threshold (WAKE_RATIO of the
+    lighter block's weight); a bonded contact stuck (its capacity is its patch's)."""
     cs = res.contacts
     jm = cs.joint_material
     shear = np.linalg.norm(res.shear_force, axis=1)
     n = res.normal_force
     rim = system.tan_phi[jm] * np.maximum(n, 0.0)
+    weight = np.where(system.fixed, np.inf, _weights(system, state))
+    wake = WAKE_RATIO * np.minimum(weight[cs.block_i], weight[cs.block_j])
+    rim = np.minimum((1.0 - SLEEP_MARGIN) * rim, rim - 2.0 * wake)
     bonded = ~res.broken if res.broken is not None else np.zeros(len(cs), dtype=bool)
     carrying = (n != 0.0) | (shear > 0.0)
-    ok = (cs.mode == LOCKED) & (shear <= (1.0 - SLEEP_MARGIN) * rim) & (n >= 0.0)
+    ok = (cs.mode == LOCKED) & (shear <= rim) & (n >= 0.0)
     ok |= bonded & (cs.mode == LOCKED)  # a bond holds it (its capacity is per patch)
     weak = carrying & ~ok
     out = np.ones(system.n, dtype=bool)
     out[cs.block_i[weak]] = False
     out[cs.block_j[weak]] = False
     return out
+
+
+def _island_quiet(system: BlockSystem, res: StepResult, quiet: np.ndarray) -> np.ndarray:
+    """Each block's island's shortest quiet time `(n,)` s: islands are the free blocks
+    joined by the step's contacts (fixed blocks do not join them), so an island sleeps
+    whole, as in Box2D, and no awake block rests on one that has just fallen asleep."""
+    cs = res.contacts
+    free = ~system.fixed
+    link = free[cs.block_i] & free[cs.block_j]
+    graph = coo_matrix((np.ones(int(link.sum())), (cs.block_i[link], cs.block_j[link])),
+                       shape=(system.n, system.n))
+    count, label = connected_components(graph, directed=False)
+    shortest = np.full(count, np.inf)
+    np.minimum.at(shortest, label, quiet)
+    return shortest[label]
 
 
 def update(system: BlockSystem, res: StepResult, after: State, dt: float,
@@ -115,15 +153,15 @@ def update(system: BlockSystem, res: StepResult, after: State, dt: float,
     asleep = np.zeros(n, dtype=bool) if after.asleep is None else after.asleep.copy()
     quiet = np.zeros(n) if after.quiet is None else after.quiet.copy()
     v = after.velocity
-    speed = (np.linalg.norm(v[:, :3], axis=1) + system.radius * np.linalg.norm(v[:, 3:6], axis=1)
-             + 2.0 * system.radius * np.abs(v[:, 6:]).max(axis=1))
-    still = ~system.fixed & ~asleep & (speed < c.sleep_velocity) & _holding(system, res)
+    speed = np.maximum(_speed(system, v), _speed(system, res.d / dt))  # quasi-static: d / Δt
+    still = ~system.fixed & ~asleep & (speed < c.sleep_velocity) & _holding(system, after, res)
     if system.bolts is not None:  # bolted blocks stay awake (their links are constraints)
         bs = system.bolts
         still[bs.block] = False
         still[bs.anchor_block[bs.anchor_block >= 0]] = False
     quiet = np.where(still, quiet + dt, np.where(asleep, quiet, 0.0))
-    falling = still & (quiet >= c.sleep_time)
+    falling = still & (_island_quiet(system, res, np.where(asleep, np.inf, quiet))
+                       >= c.sleep_time)
     if np.any(falling):
         m = mass_matrices(system, after)
         kinetic = 0.5 * float(np.einsum("ni,nij,nj->", v[falling], m[falling], v[falling]))
