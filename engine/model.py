@@ -103,6 +103,23 @@ class AnalysisControls:
     min_time_step: float = 1e-7
     fixed_point_penalty: float | None = None
     record_contacts: bool = True
+    #: how each step's contacts are solved: "open_close", the paper's open-close iteration
+    #: on penalty springs (:mod:`engine.contact.open_close`), or "complementarity", one
+    #: solve of the frictional contact problem without springs
+    #: (:mod:`engine.contact.complementarity`)
+    contact_solver: Literal["open_close", "complementarity"] = "open_close"
+    #: the complementarity solve's convergence: the change of the blocks' motion in a sweep
+    #: relative to the motion the contacts cause (energy norm)
+    contact_tolerance: float = 1e-6
+    #: restitution of an impact (the complementarity solve's impact law): the parting
+    #: normal velocity is `e` times the approach velocity; 0 is a plastic impact
+    restitution: float = 0.0
+    #: sleeping (complementarity solve): a block whose points all move slower than
+    #: `sleep_velocity` m/s for `sleep_time` s, with every contact stuck inside its friction
+    #: (and tensile) capacity by a margin, leaves the solve until a contact force on it
+    #: changes (0: never sleep)
+    sleep_velocity: float = 1e-3
+    sleep_time: float = 0.05
 
 
 @dataclass(frozen=True)

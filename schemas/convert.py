@@ -815,6 +815,11 @@ def build_model(scene: Scene | str | Path | dict[str, Any],
         min_time_step=a.min_time_step,
         fixed_point_penalty=a.fixed_point_penalty,
         record_contacts=a.record_contacts,
+        contact_solver=a.contact_solver,
+        contact_tolerance=a.contact_tolerance,
+        restitution=a.restitution,
+        sleep_velocity=a.sleep_velocity,
+        sleep_time=a.sleep_time,
     )
     default_jm = jmat_names.index(scene.default_joint_material)
     model = Model(

@@ -600,6 +600,28 @@ class AnalysisSpec(_Model):
                     "in compression and in locked shear): impacts and rocking settle "
                     "instead of ringing on the penalty springs; 0 turns them off")
     record_contacts: bool = _CONTROLS.record_contacts
+    contact_solver: Literal["open_close", "complementarity"] = Field(
+        _CONTROLS.contact_solver,
+        description="how each step's contacts are solved: 'open_close' (the paper's "
+                    "open-close iteration on penalty springs) or 'complementarity' (one "
+                    "solve of the frictional contact problem, no springs: no penalty to "
+                    "choose, and Δt is held where springs would cut it)")
+    contact_tolerance: Annotated[float, Field(gt=0, le=1e-2)] = Field(
+        _CONTROLS.contact_tolerance,
+        description="complementarity solve: change of the blocks' motion in a sweep, "
+                    "relative to the motion the contacts cause, at which it has converged")
+    restitution: Annotated[float, Field(ge=0, le=1)] = Field(
+        _CONTROLS.restitution,
+        description="complementarity solve: parting / approach normal velocity of an "
+                    "impact (0: plastic, the blocks stay together)")
+    sleep_velocity: Annotated[float, Field(ge=0)] = Field(
+        _CONTROLS.sleep_velocity,
+        description="m/s, complementarity solve: a block whose points all move slower than "
+                    "this for sleep_time, every contact stuck with a margin, sleeps (leaves "
+                    "the solve, contact forces kept) until a contact force on it changes; "
+                    "0: never")
+    sleep_time: Annotated[float, Field(gt=0)] = Field(
+        _CONTROLS.sleep_time, description="s a block must stay quiet before it sleeps")
     factor_of_safety: FactorOfSafetySpec | None = None
     critical_seismic_coefficient: CriticalSeismicSpec | None = None
 

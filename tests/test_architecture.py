@@ -91,9 +91,8 @@ def test_architecture_page_names_what_the_code_has() -> None:
         (ENGINE / "step" / "simulation.py").read_text(),
         next(f for f in ast.walk(ast.parse((ENGINE / "step" / "simulation.py").read_text()))
              if isinstance(f, ast.FunctionDef) and f.name == "step"))
-    order = ["first_attempt(", "find_contacts(", "initial_modes(", "open_close_iteration(",
-             "stepping.check(", "advance(", "damp_contacts(", "energy.check_step(",
-             "stepping.cut("]
+    order = ["first_attempt(", "find_contacts(", "solve_contacts(", "stepping.check(",
+             "advance(", "settle_contacts(", "energy.check_step(", "stepping.cut("]
     positions = [step.index(name) for name in order]
     assert positions == sorted(positions)
 

@@ -514,13 +514,13 @@ def test_step_that_outruns_its_predicted_search_is_detected_again(
     searches = _searches(monkeypatch, adaptive)
     fixed = Simulation(model(), adaptive_search=False)
     runs: list[int] = []
-    iterate = simulation.open_close_iteration
+    iterate = simulation.solve_contacts
 
     def counted(system, *args):  # noqa: ANN001, ANN002, ANN202
         runs.append(system is adaptive.system)
         return iterate(system, *args)
 
-    monkeypatch.setattr(simulation, "open_close_iteration", counted)
+    monkeypatch.setattr(simulation, "solve_contacts", counted)
     closed = 0
     while adaptive.state.time < 0.1 - 1e-12:
         res_a, res_f = adaptive.step(), fixed.step()

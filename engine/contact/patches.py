@@ -13,7 +13,10 @@ under bending or toppling really fails, from the edge in (progressively; counted
 
 The patch is data on the contacts (a patch id per contact, each patch's area); its bond state
 is the contacts' `broken` flags in the contact memory (a patch is bonded where its contacts
-are not broken), so any contact solver of a step reads the same patches.
+are not broken), so any contact solver of a step reads the same patches. The
+complementarity solve also sweeps each plane group (:func:`patch_ids`, edges and corners
+included) as a unit: a rigid face's stuck corners are redundant, and point by point
+Gauss–Seidel crawls.
 """
 
 from __future__ import annotations
@@ -24,6 +27,9 @@ import numpy as np
 from scipy.spatial import ConvexHull, QhullError
 
 from engine.contact.constraints import ContactSet
+
+#: normals of one patch agree to 1 / this (their components are rounded to it)
+NORMAL_SCALE = 1e6
 
 
 @dataclass
@@ -47,6 +53,37 @@ class ContactPatches:
         return cls(np.full(c, -1, dtype=np.int64), np.zeros(0), np.zeros(c))
 
 
+def patch_ids(contacts: ContactSet) -> np.ndarray:
+    """Each constraint's plane group `(c,) int` (0 .. groups − 1, numbered by block pair):
+    the constraints of one block pair on one plane (a face on a face, an edge on a face)."""
+    if not len(contacts):
+        return np.zeros(0, dtype=np.int64)
+    key = np.column_stack([contacts.block_i, contacts.block_j,
+                           np.round(contacts.normal * NORMAL_SCALE)]).astype(np.int64)
+    _, group = np.unique(key, axis=0, return_inverse=True)
+    return group.ravel().astype(np.int64)
+
+
+def sweep_order(contacts: ContactSet, patch: np.ndarray, gravity: np.ndarray
+                ) -> tuple[np.ndarray, np.ndarray]:
+    """Constraints grouped by plane group (`patch`, :func:`patch_ids`), groups from the top
+    down along gravity (a Gauss–Seidel sweep then carries a load down a stack in one pass):
+    the order `(c,)` and each group's bounds in it `(p + 1,)`."""
+    c = len(contacts)
+    if not c:
+        return np.zeros(0, dtype=np.int64), np.zeros(1, dtype=np.int64)
+    g = np.asarray(gravity, float)
+    norm = float(np.linalg.norm(g))
+    up = -g / norm if norm > 0 else np.array([0.0, 0.0, 1.0])
+    height = contacts.point_i @ up
+    count = int(patch.max()) + 1
+    top = np.full(count, -np.inf)
+    np.maximum.at(top, patch, height)
+    order = np.lexsort((np.arange(c), patch, -top[patch])).astype(np.int64)
+    bounds = np.flatnonzero(np.diff(patch[order])) + 1
+    return order, np.concatenate([[0], bounds, [c]]).astype(np.int64)
+
+
 def contact_patches(contacts: ContactSet) -> ContactPatches:
     """The patches of `contacts`: constraints of one block pair with a common plane form a
     patch when there are at least three of them and their points span an area (the convex
@@ -57,10 +94,7 @@ def contact_patches(contacts: ContactSet) -> ContactPatches:
     areas: list[float] = []
     if not c:
         return ContactPatches(patch, np.zeros(0), share)
-    key = np.column_stack([contacts.block_i, contacts.block_j,
-                           np.round(contacts.normal * 1e6)]).astype(np.int64)
-    _, group = np.unique(key, axis=0, return_inverse=True)
-    group = group.ravel()
+    group = patch_ids(contacts)
     for g in np.unique(group):
         idx = np.flatnonzero(group == g)
         if len(idx) < 3:

@@ -58,9 +58,9 @@ def detect(system: BlockSystem, state: State, search: float | np.ndarray | None 
            ) -> ContactSet:
     """Contacts within `search` m (default: the model's search distance; or each block's
     reach `(n,)`, see :func:`detect_contacts`) at the start of the step, with their joint
-    materials."""
+    materials; pairs of blocks that do not move (fixed or asleep) are left out."""
     contacts = detect_contacts(system.polys0, system.search_distance if search is None
-                               else search, active=~system.fixed,
+                               else search, active=state.awake(system.fixed),
                                vertices=current_vertices(system, state))
     m = system.model
     assign_joint_materials(contacts, m.default_joint_material, m.joint_material_of_tag,

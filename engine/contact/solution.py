@@ -40,3 +40,10 @@ class StepResult:
     #: face-to-face bonds (patches, engine.contact.patches) the step broke whole, and those
     #: it broke in part (progressively: tension where the stress over the patch is uneven)
     bond_breaks: tuple[int, int] = (0, 0)
+    #: the blocks' velocities at the step's end `(n, 12)` when the solver applied an impact
+    #: law (None: DDA's `2 d / Δt − v0`)
+    velocity: np.ndarray | None = None
+    #: contact forces `(c, 3)` N on block i (world axes), carried to the next step
+    force: np.ndarray | None = None
+    #: energy (J) the contacts store at the step's end (None: the penalty springs')
+    contact_energy: float | None = None

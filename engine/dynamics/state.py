@@ -24,7 +24,7 @@ def _row_keys(key: np.ndarray) -> np.ndarray:
 
 
 #: the arrays of a :class:`ContactMemory`, in its field order
-_MEMORY_FIELDS = ("key", "mode", "shear", "tangent", "broken", "gap")
+MEMORY_FIELDS = ("key", "mode", "shear", "tangent", "broken", "gap", "force")
 
 
 @dataclass
@@ -33,7 +33,9 @@ class ContactMemory:
 
     One row per closed contact, sorted by key: `key (m, 4)`, `mode (m,)`, accumulated
     tangential displacement `shear (m, 3)` m, sliding direction `tangent (m, 3)`,
-    `broken (m,)` (cohesion and tensile strength lost) and the end-of-step `gap (m,)` m.
+    `broken (m,)` (cohesion and tensile strength lost), the end-of-step `gap (m,)` m and
+    the contact `force (m, 3)` N on block i (the complementarity solve's warm start; zero
+    from the open-close iteration).
     """
 
     key: np.ndarray = field(default_factory=lambda: np.zeros((0, 4), dtype=np.int64))
@@ -42,10 +44,13 @@ class ContactMemory:
     tangent: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
     broken: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=bool))
     gap: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    force: np.ndarray | None = None
 
     def __post_init__(self) -> None:
+        if self.force is None:
+            self.force = np.zeros((len(self.key), 3))
         order = np.argsort(_row_keys(self.key), kind="stable")
-        for name in _MEMORY_FIELDS:
+        for name in MEMORY_FIELDS:
             setattr(self, name, getattr(self, name)[order])
         self._sorted = _row_keys(self.key)
 
@@ -104,6 +109,9 @@ class Diagnostics:
     bonds_broken: int = 0
     bonds_broken_progressively: int = 0
 
+    #: blocks woken from sleep, and steps redone to wake them (engine.step.sleep)
+    wakes: int = 0
+
     def tick(self, phase: str, since: float) -> float:
         """Add the wall time since `since` (perf_counter) to `phase`; return now."""
         now = _time.perf_counter()
@@ -143,9 +151,19 @@ class State:
     bolt_plastic: np.ndarray | None = None
     bolt_shear: np.ndarray | None = None
     bolt_status: np.ndarray | None = None
+    #: blocks asleep `(n,)` (out of the solve, at rest with their contact forces kept;
+    #: None: all awake) and how long each has been quiet `(n,)` s (engine.step.sleep)
+    asleep: np.ndarray | None = None
+    quiet: np.ndarray | None = None
+    #: each sleeping block's change of contact resultant since it fell asleep `(n, 6)` N
+    drift: np.ndarray | None = None
     diagnostics: Diagnostics = field(default_factory=Diagnostics)
     #: values derived from this state, computed once (not saved)
     cache: dict[str, Any] = field(default_factory=dict, repr=False, compare=False)
+
+    def awake(self, fixed: np.ndarray) -> np.ndarray:
+        """The blocks that move in the next step `(n,)`: free and not asleep."""
+        return ~fixed if self.asleep is None else ~fixed & ~self.asleep
 
 
 def initial_state(centroid: np.ndarray, velocity: np.ndarray, dt: float) -> State:
@@ -157,14 +175,14 @@ def initial_state(centroid: np.ndarray, velocity: np.ndarray, dt: float) -> Stat
 
 
 _ARRAYS = ("centroid", "affine", "rotation", "velocity", "stress", "last_d", "deepest",
-           "bolt_plastic", "bolt_shear", "bolt_status")
+           "bolt_plastic", "bolt_shear", "bolt_status", "asleep", "quiet", "drift")
 _SCALARS = ("time", "step", "dt", "last_dt", "contact_energy")
 
 
 def save_state(state: State, path: str | os.PathLike[str]) -> None:
     """Write `state` to `path` (a `.npz` file of plain arrays; floats kept bit for bit)."""
     arrays = {name: getattr(state, name) for name in _ARRAYS if getattr(state, name) is not None}
-    arrays.update({f"memory_{name}": getattr(state.memory, name) for name in _MEMORY_FIELDS})
+    arrays.update({f"memory_{name}": getattr(state.memory, name) for name in MEMORY_FIELDS})
     meta = {name: getattr(state, name) for name in _SCALARS}
     meta.update(energies=state.energies, diagnostics=dataclasses.asdict(state.diagnostics))
     with open(path, "wb") as fh:  # np.savez would add ".npz" to a name without it
@@ -176,7 +194,8 @@ def load_state(path: str | os.PathLike[str]) -> State:
     with np.load(path, allow_pickle=False) as z:
         meta = json.loads(str(z["meta"]))
         arrays = {name: z[name] if name in z.files else None for name in _ARRAYS}
-        memory = ContactMemory(**{name: z[f"memory_{name}"] for name in _MEMORY_FIELDS})
+        memory = ContactMemory(**{name: z[f"memory_{name}"] for name in MEMORY_FIELDS
+                                  if f"memory_{name}" in z.files})
     diagnostics = Diagnostics(**meta["diagnostics"])
     return State(**arrays, **{name: meta[name] for name in _SCALARS}, memory=memory,
                  energies=meta["energies"], diagnostics=diagnostics)

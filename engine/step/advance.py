@@ -11,7 +11,7 @@ from engine.contact.constraints import LOCKED, OPEN
 from engine.contact.solution import StepResult
 from engine.dynamics.block_terms import bolts_now, water_now
 from engine.dynamics.motion import bolt_energy, map_point, mass_matrices, mass_properties
-from engine.dynamics.state import ContactMemory, Diagnostics, State
+from engine.dynamics.state import MEMORY_FIELDS, ContactMemory, Diagnostics, State
 from engine.dynamics.system import BlockSystem
 from engine.geometry._transform_kernels import move_blocks
 from engine.geometry.transforms import displacement_matrices
@@ -51,10 +51,11 @@ def _work(system: BlockSystem, state: State, res: StepResult, dt: float) -> dict
     return e
 
 
-def _memory(system: BlockSystem, res: StepResult) -> ContactMemory:
+def _memory(system: BlockSystem, state: State, res: StepResult) -> ContactMemory:
     """What the step's contacts carry to the next step: closed contacts, broken ones (stay
     broken) and open ones pressed in within the open-close hysteresis (their springs start
-    the next step unstretched, see :func:`engine.contact.search.plausible_gaps`)."""
+    the next step unstretched, see :func:`engine.contact.search.plausible_gaps`); and, kept
+    as they were, the contacts between blocks that did not move (asleep or fixed)."""
     cs = res.contacts
     broken = res.broken if res.broken is not None else np.zeros(len(cs), dtype=bool)
     keep = (cs.mode != OPEN) | broken | (res.gap1 < 0)
@@ -65,9 +66,16 @@ def _memory(system: BlockSystem, res: StepResult) -> ContactMemory:
     tangent = np.where(big[:, None], slip / np.maximum(slip_norm, 1e-300)[:, None],
                        cs.tangent[keep])
     # a contact that slid or ended open has lost its bond (cohesion, tensile strength)
-    return ContactMemory(key=cs.key[keep], mode=cs.mode[keep], shear=res.shear[keep],
-                         tangent=tangent, broken=broken[keep] | (cs.mode[keep] != LOCKED),
-                         gap=res.gap1[keep])
+    new = ContactMemory(key=cs.key[keep], mode=cs.mode[keep], shear=res.shear[keep],
+                        tangent=tangent, broken=broken[keep] | (cs.mode[keep] != LOCKED),
+                        gap=res.gap1[keep],
+                        force=None if res.force is None else res.force[keep])
+    if state.asleep is None or not np.any(state.asleep):
+        return new
+    mem, awake = state.memory, state.awake(system.fixed)
+    still = ~awake[mem.key[:, 0]] & ~awake[mem.key[:, 2]]
+    return ContactMemory(**{name: np.concatenate([getattr(new, name), getattr(mem, name)[still]])
+                            for name in MEMORY_FIELDS})
 
 
 def _penetrations(system: BlockSystem, state: State, res: StepResult
@@ -109,15 +117,16 @@ def _advance_bolts(system: BlockSystem, state: State, after: State, d: np.ndarra
 
 def advance(system: BlockSystem, state: State, res: StepResult, dt: float) -> State:
     """The state after the converged step `res` of `dt` s: blocks moved with the exact
-    rotation, velocities `2 d / Δt − v0` (times the dynamic ratio; the kinetic energy that
-    removes counts as the integrator's dissipation), stresses, energies, the contacts'
+    rotation, velocities `2 d / Δt − v0` or the ones the contact solve's impact law gave
+    (times the dynamic ratio; the kinetic energy that removes counts as the integrator's
+    dissipation), stresses, energies, the contacts'
     memory and the time (`dt` and `last_dt` are the caller's). The state `state` is left
     as it was, so a step can be redone from it."""
     d = res.d
     centroid, affine, rotation = state.centroid.copy(), state.affine.copy(), \
         state.rotation.copy()
     move_blocks(d, centroid, affine, rotation)
-    v1 = 2.0 * d / dt - state.velocity
+    v1 = 2.0 * d / dt - state.velocity if res.velocity is None else res.velocity.copy()
     v1[system.fixed] = 0.0
     stress = state.stress
     if system.elastic:
@@ -126,9 +135,11 @@ def advance(system: BlockSystem, state: State, res: StepResult, dt: float) -> St
     after = State(
         centroid=centroid, affine=affine, rotation=rotation, velocity=v1, stress=stress,
         time=state.time + dt, step=state.step + 1, dt=state.dt, last_dt=state.last_dt,
-        memory=_memory(system, res), last_d=d, deepest=deepest,
-        energies=_work(system, state, res, dt), contact_energy=spring_energy(system, res),
-        diagnostics=diagnostics)
+        memory=_memory(system, state, res), last_d=d, deepest=deepest,
+        energies=_work(system, state, res, dt),
+        contact_energy=spring_energy(system, res) if res.contact_energy is None
+        else res.contact_energy,
+        diagnostics=diagnostics, asleep=state.asleep, quiet=state.quiet, drift=state.drift)
     if system.bolts is not None:
         _advance_bolts(system, state, after, d)
     ratio = system.controls.dynamic_ratio

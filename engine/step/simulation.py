@@ -1,10 +1,11 @@
 """DDA time stepping: the orchestrator of a run.
 
-A step is the paper's pipeline (THEORY.md "One step"): find contacts → initial modes (Table
-1, inherited modes) → open-close iteration (Table 2) → checks (displacement limit,
-penetration) → advance (exact rotation) → energy watchdog → record. Each stage is a module
-of its own: :mod:`engine.contact.search`, :mod:`engine.contact.open_close`,
-:mod:`engine.step.stepping`, :mod:`engine.step.advance`, :mod:`engine.contact.damping`,
+A step is the paper's pipeline (THEORY.md "One step"): find contacts → the contact solution
+(the open-close iteration of Tables 1 and 2, or the complementarity solve) → checks
+(displacement limit, penetration) → wake sleeping blocks whose loads changed → advance
+(exact rotation) → settle rings and rebounds → put quiet blocks to sleep → energy watchdog →
+record. Each stage is a module of its own: :mod:`engine.contact.search`,
+:mod:`engine.contact.solvers`, :mod:`engine.step.stepping`, :mod:`engine.step.advance`,
 :mod:`engine.step.energy`, :mod:`engine.step.output`. When an attempt fails, Δt is cut and
 the step redone; below the smallest allowed time step the run stops with a clear status and
 keeps what was recorded. Constants live in a :class:`BlockSystem`, everything that changes
@@ -21,15 +22,14 @@ from typing import Any
 
 import numpy as np
 
-from engine.contact.damping import damp_contacts
-from engine.contact.open_close import initial_modes, open_close_iteration
 from engine.contact.search import find_contacts
 from engine.contact.solution import StepResult
+from engine.contact.solvers import settle_contacts, solve_contacts
 from engine.dynamics.state import State, initial_state, load_state, save_state
 from engine.dynamics.system import BlockSystem, build_system
 from engine.model import Model
 from engine.status import STATUS_CANCELLED, STATUS_COMPLETED, STATUS_FAILED, StepFailure
-from engine.step import energy, output, stepping
+from engine.step import energy, output, sleep, stepping
 from engine.step.advance import advance
 from engine.step.frame import Frame, Recorder
 
@@ -95,15 +95,19 @@ class Simulation:
         while True:
             try:
                 if res is None:
-                    start = initial_modes(system, state, contacts, attempt.dt)
-                    res = open_close_iteration(system, state, contacts, patches, start,
-                                               attempt.dt)
+                    res = solve_contacts(system, state, contacts, patches, attempt.dt)
                 stepping.check(system, res, attempt)
+                drift = sleep.check_wake(system, state, res)
                 clock = _time.perf_counter()
                 after = advance(system, state, res, attempt.dt)
-                after = damp_contacts(system, state, res, after, attempt.dt)
+                after = settle_contacts(system, state, res, after, attempt.dt)
+                sleep.update(system, res, after, attempt.dt, drift)
                 energy.check_step(system, state, after)
                 break
+            except sleep.Wake:  # blocks woke: the step again with them in it
+                contacts, patches = find_contacts(system, state,
+                                                  stepping.reach(system, state, attempt))
+                res = None
             except stepping.SearchWider:
                 wider, patches_wider = find_contacts(system, state,
                                                      stepping.reach(system, state, attempt))

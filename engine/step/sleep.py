@@ -1,0 +1,174 @@
+"""Sleeping blocks: model no more of a scene than moves (complementarity solve only).
+
+An island of blocks (free blocks joined by contacts) sleeps when all their points have
+moved slower than `sleep_velocity` for `sleep_time` (their velocities, and each step's
+displacement over Δt: quasi-static steps zero the velocity) and every contact holds with a
+margin (stuck, its shear force within SLEEP_MARGIN of its friction rim and below it by
+twice the wake threshold): a block near its limit (a slope at FS 1.02 under a load that
+creeps up) never sleeps, only one that rests. A sleeping block leaves the solve — it is
+fixed for its awake neighbours, its velocity is zero, its contacts keep their forces (and
+bonds) — and its pairs with other sleeping or fixed blocks are not searched (nor recorded
+in a frame's contacts while they sleep). It wakes when the contacts its awake neighbours
+press on it have changed its resultant force or moment, since it fell asleep, by more than
+WAKE_RATIO of its weight (a block lands on it, a neighbour slides off it, a load creeps);
+the step is then solved again with it awake, so the wake costs no motion. Blocks with
+bolts, deformable blocks (their stresses relax slower than a rigid block comes to rest),
+scenes with water (whose pressures follow the neighbours) and scenes under ground motion
+never sleep.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy.sparse import coo_matrix
+from scipy.sparse.csgraph import connected_components
+
+from engine.contact.constraints import LOCKED
+from engine.contact.solution import StepResult
+from engine.dynamics.motion import mass_matrices, mass_properties
+from engine.dynamics.state import State
+from engine.dynamics.system import BlockSystem
+
+#: a sleeping block's contacts must hold this far inside their capacity
+SLEEP_MARGIN = 0.05
+#: a sleeping block wakes when its resultant contact force (moment about its centroid, over
+#: its radius) changes by more than this fraction of its weight
+WAKE_RATIO = 1e-2
+
+
+class Wake(Exception):
+    """Sleeping blocks must wake: solve the step again with them awake."""
+
+
+def enabled(system: BlockSystem) -> bool:
+    """Whether blocks of this run may sleep."""
+    c = system.controls
+    return (c.contact_solver == "complementarity" and c.sleep_velocity > 0
+            and not system.elastic and system.water is None
+            and system.model.ground_motion is None)
+
+
+def _resultants(system: BlockSystem, state: State, block: np.ndarray, point: np.ndarray,
+                force: np.ndarray) -> np.ndarray:
+    """Each block's resultant `(n, 6)` of forces `force (k, 3)` N acting on `block (k,)` at
+    `point (k, 3)`: force and moment about its centroid over its radius (N)."""
+    out = np.zeros((system.n, 6))
+    np.add.at(out[:, :3], block, force)
+    arm = point - state.centroid[block]
+    np.add.at(out[:, 3:], block, np.cross(arm, force) / system.radius[block, None])
+    return out
+
+
+def check_wake(system: BlockSystem, state: State, res: StepResult) -> np.ndarray | None:
+    """The sleeping blocks' change of resultant `(n, 6)` N since they fell asleep, with the
+    step `res` (its contacts with awake blocks against the forces they had, by contact
+    key); raises :class:`Wake`, the state's sleeping blocks updated, when a change exceeds
+    WAKE_RATIO of a block's weight. None when nothing sleeps."""
+    asleep = state.asleep
+    if asleep is None or not np.any(asleep) or res.force is None:
+        return None
+    cs = res.contacts
+    mem = state.memory
+    row = mem.find(cs.key)
+    before = np.where((row >= 0)[:, None], mem.force[np.maximum(row, 0)], 0.0)
+    change = res.force - before  # on block i; block j gets the opposite
+    on_i, on_j = asleep[cs.block_i], asleep[cs.block_j]
+    drift = (np.zeros((system.n, 6)) if state.drift is None else state.drift.copy())
+    drift += _resultants(system, state, cs.block_i[on_i], cs.point_i[on_i], change[on_i])
+    drift += _resultants(system, state, cs.block_j[on_j], cs.point_j[on_j], -change[on_j])
+    weight = _weights(system, state)
+    woken = asleep & (np.linalg.norm(drift, axis=1) > WAKE_RATIO * weight)
+    if np.any(woken):
+        state.asleep = asleep & ~woken
+        state.quiet = np.where(woken, 0.0, state.quiet)
+        state.drift = np.where(woken[:, None], 0.0, state.drift if state.drift is not None
+                               else 0.0)
+        state.diagnostics.wakes += int(woken.sum())
+        raise Wake
+    return drift
+
+
+def _speed(system: BlockSystem, v: np.ndarray) -> np.ndarray:
+    """The fastest point's speed bound of each block `(n,)` m/s for velocities `v (n, d)`:
+    translation, rotation times the radius, strain rate times the diameter."""
+    return (np.linalg.norm(v[:, :3], axis=1) + system.radius * np.linalg.norm(v[:, 3:6], axis=1)
+            + 2.0 * system.radius * np.abs(v[:, 6:]).max(axis=1, initial=0.0))
+
+
+def _weights(system: BlockSystem, state: State) -> np.ndarray:
+    """Each block's weight `(n,)` N (its mass times |g|; a floor for weightless scenes)."""
+    g = max(float(np.linalg.norm(system.gravity)), 1.0)
+    return system.density * mass_properties(system, state)[0] * g
+
+
+def _holding(system: BlockSystem, state: State, res: StepResult) -> np.ndarray:
+    """Blocks `(n,)` whose contacts all hold with a margin: stuck, the shear force within
+    SLEEP_MARGIN of the friction rim and, so that no change too small to wake a block can
+    make one of its contacts slip, below it by twice the wake threshold (WAKE_RATIO of the
+    lighter block's weight); a bonded contact stuck (its capacity is its patch's)."""
+    cs = res.contacts
+    jm = cs.joint_material
+    shear = np.linalg.norm(res.shear_force, axis=1)
+    n = res.normal_force
+    rim = system.tan_phi[jm] * np.maximum(n, 0.0)
+    weight = np.where(system.fixed, np.inf, _weights(system, state))
+    wake = WAKE_RATIO * np.minimum(weight[cs.block_i], weight[cs.block_j])
+    rim = np.minimum((1.0 - SLEEP_MARGIN) * rim, rim - 2.0 * wake)
+    bonded = ~res.broken if res.broken is not None else np.zeros(len(cs), dtype=bool)
+    carrying = (n != 0.0) | (shear > 0.0)
+    ok = (cs.mode == LOCKED) & (shear <= rim) & (n >= 0.0)
+    ok |= bonded & (cs.mode == LOCKED)  # a bond holds it (its capacity is per patch)
+    weak = carrying & ~ok
+    out = np.ones(system.n, dtype=bool)
+    out[cs.block_i[weak]] = False
+    out[cs.block_j[weak]] = False
+    return out
+
+
+def _island_quiet(system: BlockSystem, res: StepResult, quiet: np.ndarray) -> np.ndarray:
+    """Each block's island's shortest quiet time `(n,)` s: islands are the free blocks
+    joined by the step's contacts (fixed blocks do not join them), so an island sleeps
+    whole, as in Box2D, and no awake block rests on one that has just fallen asleep."""
+    cs = res.contacts
+    free = ~system.fixed
+    link = free[cs.block_i] & free[cs.block_j]
+    graph = coo_matrix((np.ones(int(link.sum())), (cs.block_i[link], cs.block_j[link])),
+                       shape=(system.n, system.n))
+    count, label = connected_components(graph, directed=False)
+    shortest = np.full(count, np.inf)
+    np.minimum.at(shortest, label, quiet)
+    return shortest[label]
+
+
+def update(system: BlockSystem, res: StepResult, after: State, dt: float,
+           drift: np.ndarray | None) -> None:
+    """After a step of `dt` s: each awake block's quiet time, the sleeping blocks'
+    resultant change `drift` (:func:`check_wake`), and the blocks that fall asleep (their
+    velocities zeroed; the kinetic energy that removes, below the threshold's, counts as
+    numerical dissipation)."""
+    if not enabled(system):
+        return
+    c = system.controls
+    n = system.n
+    asleep = np.zeros(n, dtype=bool) if after.asleep is None else after.asleep.copy()
+    quiet = np.zeros(n) if after.quiet is None else after.quiet.copy()
+    v = after.velocity
+    speed = np.maximum(_speed(system, v), _speed(system, res.d / dt))  # quasi-static: d / Δt
+    still = ~system.fixed & ~asleep & (speed < c.sleep_velocity) & _holding(system, after, res)
+    if system.bolts is not None:  # bolted blocks stay awake (their links are constraints)
+        bs = system.bolts
+        still[bs.block] = False
+        still[bs.anchor_block[bs.anchor_block >= 0]] = False
+    quiet = np.where(still, quiet + dt, np.where(asleep, quiet, 0.0))
+    falling = still & (_island_quiet(system, res, np.where(asleep, np.inf, quiet))
+                       >= c.sleep_time)
+    if np.any(falling):
+        m = mass_matrices(system, after)
+        kinetic = 0.5 * float(np.einsum("ni,nij,nj->", v[falling], m[falling], v[falling]))
+        after.energies["numerical_dissipation"] += kinetic
+        after.velocity = v.copy()
+        after.velocity[falling] = 0.0
+        asleep |= falling
+    drift = np.zeros((n, 6)) if drift is None else drift
+    drift[falling] = 0.0
+    after.asleep, after.quiet, after.drift = asleep, quiet, drift
