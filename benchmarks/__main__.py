@@ -25,7 +25,16 @@ from typing import Any
 
 import numpy as np
 
-from benchmarks import cases, components, peers, scaling, stability, timestep, trust
+from benchmarks import (
+    bench_contact_solvers,
+    cases,
+    components,
+    peers,
+    scaling,
+    stability,
+    timestep,
+    trust,
+)
 from benchmarks import harness as h
 
 SECTIONS = ("accuracy", "peers", "stability", "trust", "scaling", "timestep", "savings",
@@ -438,6 +447,9 @@ def write_report(out: Path, report: Path, meta: dict[str, Any]) -> None:
     cp = h.load_json(out, "components")
     parts += [components.components_part(cp) if cp else
               "## 6. Cutting and contact detection on their own\n\n(section not run)", ""]
+    cs = h.load_json(out, "contact_solvers")
+    parts += [bench_contact_solvers.report_part(cs, "contact_solvers.png") if cs else
+              "## 7. Contact solvers side by side\n\n(section not run)", ""]
     if sv:
         failures += savings_failures(sv)
     parts += ["## Failures found", "",

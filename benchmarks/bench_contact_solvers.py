@@ -2,10 +2,11 @@
 
 Accuracy: the analytic cases (VALIDATION.md 1 and 5) at Δt 1 ms, their error and wall time.
 Speed: the cut rock masses of `benchmarks.pile.rock_mass_model` (10 m cube, three sets,
-φ 30°, asked Δt 1 ms) and the shared piles, STEPS steps each in a process of its own: the
-wall per step and per phase, iterations per step (open-close cycles, or Gauss–Seidel
-sweeps), the Δt actually held, the blocks asleep, peak RSS and the extrapolated wall per
-simulated second; MuJoCo on the same piles in the same run when it is installed.
+φ 30°, asked Δt 1 ms; STEPS steps) and the shared piles (their whole second), each in a
+process of its own: the wall per step and per phase, iterations per step (open-close
+cycles, or Gauss–Seidel sweeps), the complementarity residual, the Δt actually held, the
+blocks asleep, peak RSS and the (extrapolated) wall per simulated second; MuJoCo on the
+same piles in the same run when it is installed.
 Run: `python -m benchmarks.bench_contact_solvers [STEPS]` (default 10); writes
 `benchmarks/results/contact_solvers.json` and prints the table.
 """
@@ -23,19 +24,22 @@ import numpy as np
 
 SOLVERS = ("open_close", "complementarity")
 PHASES = ("detection", "assembly", "solve", "open_close", "update")
-#: (name, builder expression): the speed cases
+#: (name, builder expression, simulated seconds or None: STEPS steps): the speed cases
 CASES = (
-    ("rock mass 5 m", "rock_mass_model(5.0)"),
-    ("rock mass 2.5 m", "rock_mass_model(2.5)"),
-    ("rock mass 1.2 m", "rock_mass_model(1.2)"),
-    ("pile 100", "pile_model(100)"),
-    ("pile 1000", "pile_model(1000)"),
+    ("rock mass 5 m", "rock_mass_model(5.0)", None),
+    ("rock mass 2.5 m", "rock_mass_model(2.5)", None),
+    ("rock mass 1.2 m", "rock_mass_model(1.2)", None),
+    ("pile 100", "pile_model(100)", 1.0),
+    ("pile 1000", "pile_model(1000)", 1.0),
 )
+#: a run stops here (wall seconds) and says so
+WALL_CAP = 1800.0
 OUT = Path(__file__).parent / "results" / "contact_solvers.json"
 
 
-def one(builder: str, solver: str, steps: int) -> dict:
-    """Step the case `builder` under `solver` (in this process)."""
+def one(builder: str, solver: str, steps: int, seconds: float | None = None) -> dict:
+    """Step the case `builder` under `solver` (in this process) `steps` times, or through
+    `seconds` of simulated time; WALL_CAP stops it."""
     import warnings
 
     warnings.simplefilter("ignore")
@@ -49,16 +53,21 @@ def one(builder: str, solver: str, steps: int) -> dict:
     t0 = time.perf_counter()
     sim = Simulation(model)
     setup = time.perf_counter() - t0
-    its, contacts, status, message = [], [], "completed", ""
+    its, contacts, resid, status, message = [], [], [], "completed", ""
     sim.state.diagnostics.timings.clear()
     t1 = time.perf_counter()
-    for _ in range(steps):
+    while (sim.state.time < seconds - 1e-9 if seconds else sim.state.step < steps):
+        if time.perf_counter() - t1 > WALL_CAP:
+            status, message = "stopped", f"wall cap {WALL_CAP:.0f} s"
+            break
         try:
             res = sim.step()
         except StepFailure as exc:
             status, message = "failed", str(exc)
             break
         its.append(res.iterations)
+        if res.residual is not None:
+            resid.append(res.residual)
         contacts.append(len(res.contacts))
     wall = time.perf_counter() - t1
     n = max(sim.state.step, 1)
@@ -68,7 +77,8 @@ def one(builder: str, solver: str, steps: int) -> dict:
             "steps": sim.state.step, "simulated_s": sim.state.time, "wall_s": wall,
             "per_step_s": wall / n, "per_sim_second_s": wall / max(sim.state.time, 1e-12),
             "mean_dt": sim.state.time / n, "iterations_mean": float(np.mean(its or [0])),
-            "iterations_max": int(np.max(its or [0])), "contacts_mean": float(
+            "iterations_max": int(np.max(its or [0])),
+            "residual_max": float(np.max(resid)) if resid else None, "contacts_mean": float(
                 np.mean(contacts or [0])), "asleep_end": asleep, "status": status,
             "message": message[:200], "rss_peak_mb": peak_rss_mb(),
             **{f"t_{p}": tm.get(p, 0.0) / n for p in PHASES}}
@@ -126,6 +136,83 @@ def mujoco(n: int, steps: int) -> dict | None:
             "per_sim_second_s": r["wall_s"] / (steps * 1e-3), "mean_dt": 1e-3}
 
 
+def plot(data: dict, out: Path) -> str:
+    """Speed against accuracy (analytic cases) and wall per simulated second against
+    blocks (rock masses; MuJoCo on the piles), both solvers: the chart's file name."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, (ax1, ax2) = plt.subplots(1, 2, figsize=(11, 4.2))
+    marks = {"open_close": "o", "complementarity": "s", "MuJoCo": "^"}
+    for row in data["accuracy"]:
+        ax1.loglog(row["wall_s"], max(row["error"], 1e-16), marks[row["solver"]],
+                   label=f"{row['case']}, {row['solver']}")
+    ax1.set_xlabel("wall (s)")
+    ax1.set_ylabel("relative error")
+    ax1.set_title("analytic cases at Δt 1 ms")
+    ax1.legend(fontsize=7)
+    for solver in (*SOLVERS, "MuJoCo"):
+        for kind in ("rock mass", "pile"):
+            rows = [r for r in data["speed"] if r.get("solver") == solver
+                    and r.get("case", "").startswith(kind) and "per_sim_second_s" in r]
+            if rows:
+                ax2.loglog([r["blocks"] for r in rows], [r["per_sim_second_s"] for r in rows],
+                           marks[solver] + ("-" if kind == "rock mass" else ":"),
+                           label=f"{kind}, {solver}")
+    ax2.axhline(60.0, color="grey", lw=0.8)
+    ax2.text(40, 70, "issue 29's target: 1 s in 60 s", fontsize=7)
+    ax2.set_xlabel("free blocks")
+    ax2.set_ylabel("wall per simulated second (s)")
+    ax2.set_title("cut rock masses and piles (first steps)")
+    ax2.legend(fontsize=7)
+    fig.tight_layout()
+    name = "contact_solvers.png"
+    fig.savefig(out / name, dpi=110)
+    plt.close(fig)
+    return name
+
+
+def _maybe(value: float | None) -> str:
+    """A number for the table, or nothing."""
+    return "" if value is None else f"{value:.1e}"
+
+
+def report_part(data: dict, chart: str) -> str:
+    """REPORT.md's section on the two contact solvers."""
+    lines = ["## 7. Contact solvers side by side (issue 29)", "",
+             "`python -m benchmarks.bench_contact_solvers 10`: both solvers on the same cases "
+             "in one run (asked Δt 1 ms, each case in its own process: the rock masses 10 "
+             "steps from rest, the piles their whole second, MuJoCo too). Iterations are "
+             "open-close cycles or Gauss–Seidel sweeps; for the complementarity solve the "
+             "`solve` phase is its position stage and `open_close` its velocity (impact) "
+             "stage.", "",
+             "| case | solver | relative error | wall (s) |", "|---|---|---|---|"]
+    lines += [f"| {r['case']} | {r['solver']} | {r['error']:.1e} | {r['wall_s']:.2f} |"
+              for r in data["accuracy"]]
+    lines += ["", "| case | solver | blocks | s/step | " + " | ".join(PHASES) +
+              " | iterations mean/max | residual (m) | Δt held (s) | s per simulated s | "
+              "peak RSS (MB) | status |", "|---" * (10 + len(PHASES)) + "|"]
+    for r in data["speed"]:
+        if r.get("status") == "error":
+            lines.append(f"| {r['case']} | {r['solver']} | error: {r['message'][:80]} |")
+        elif r["solver"] == "MuJoCo":
+            lines.append(f"| {r['case']} | MuJoCo | {r['blocks']} | "
+                         f"{r['wall_s'] / r['steps']:.4f} |" + " |" * len(PHASES) +
+                         f" | | 1e-3 | {r['per_sim_second_s']:.3g} | | |")
+        else:
+            lines.append(
+                f"| {r['case']} | {r['solver']} | {r['blocks']} | {r['per_step_s']:.3f} | " +
+                " | ".join(f"{r[f't_{p}']:.3f}" for p in PHASES) +
+                f" | {r['iterations_mean']:.0f}/{r['iterations_max']} | "
+                f"{_maybe(r.get('residual_max'))} | "
+                f"{r['mean_dt']:.2g} | "
+                f"{r['per_sim_second_s']:.3g} | {r['rss_peak_mb']:.0f} | {r['status']} |")
+    lines += ["", f"![contact solvers](results/{chart})", ""]
+    return "\n".join(lines)
+
+
 def main() -> None:
     steps = int(sys.argv[1]) if len(sys.argv) > 1 else 10
     only = sys.argv[2:]  # case names to run (default all)
@@ -133,15 +220,15 @@ def main() -> None:
     for row in out["accuracy"]:
         print(f"{row['case']:30s} {row['solver']:16s} error {row['error']:.2e} "
               f"({row['measure']}) in {row['wall_s']:.2f} s", flush=True)
-    for name, builder in CASES:
+    for name, builder, seconds in CASES:
         if only and name not in only:
             continue
         for solver in SOLVERS:
             try:
                 proc = subprocess.run([sys.executable, "-c", (
                     "import json; from benchmarks.bench_contact_solvers import one; "
-                    f"print(json.dumps(one({builder!r}, {solver!r}, {steps})))")],
-                    capture_output=True, text=True, check=True, timeout=3600)
+                    f"print(json.dumps(one({builder!r}, {solver!r}, {steps}, {seconds})))")],
+                    capture_output=True, text=True, check=True, timeout=2 * WALL_CAP)
                 r = json.loads(proc.stdout.strip().splitlines()[-1])
             except (subprocess.SubprocessError, ValueError) as exc:
                 r = {"solver": solver, "status": "error", "message": str(exc)[-300:]}
@@ -158,7 +245,7 @@ def main() -> None:
                   f"simulated s; asleep {r['asleep_end']}; {r['rss_peak_mb']:.0f} MB; "
                   f"{r['status']} {r['message'][:80]}", flush=True)
         if name.startswith("pile"):
-            mj = mujoco(int(name.split()[1]), 1000)
+            mj = mujoco(int(name.split()[1]), 1000)  # its whole second
             if mj is not None:
                 mj["case"] = name
                 out["speed"].append(mj)
@@ -166,6 +253,7 @@ def main() -> None:
                       "simulated s", flush=True)
     OUT.parent.mkdir(exist_ok=True)
     OUT.write_text(json.dumps(out, indent=1))
+    plot(out, OUT.parent)
 
 
 if __name__ == "__main__":

@@ -301,12 +301,13 @@ def _primal(system: BlockSystem, state: State, contacts: ContactSet, fr: _Frame,
 def _position_stage(system: BlockSystem, state: State, contacts: ContactSet,
                     areas: np.ndarray, fr: _Frame, kb: np.ndarray, fb: np.ndarray
                     ) -> tuple[np.ndarray, np.ndarray, np.ndarray, _Law, int, np.ndarray,
-                               np.ndarray]:
+                               np.ndarray, float]:
     """The step's displacements `x (m, d)` and contact forces `r (c, 3)` N, which contacts
     of joints with strength end the step without their bond `(c,)`, the contacts' law as it
-    ended, the sweeps, the end gaps `(c,)` m and the relative motions `(c, 3)` m in the
-    contacts' frames. A bonded patch breaks as a whole when any of its points moves: then
-    no distribution of the forces within the points' capacities holds it."""
+    ended, the sweeps, the end gaps `(c,)` m, the relative motions `(c, 3)` m in the
+    contacts' frames and the residual (the law's largest violation, m). A bonded patch
+    breaks as a whole when any of its points moves: then no distribution of the forces
+    within the points' capacities holds it."""
     law, g0, strong, bonded = _law(system, state, contacts, areas)
     nd = system.ndof
     xfree = np.einsum("bij,bj->bi", fr.kinv, fb[fr.free, :nd])
@@ -332,7 +333,9 @@ def _position_stage(system: BlockSystem, state: State, contacts: ContactSet,
         broken |= breaking
         law.tension[breaking] = 0.0
         law.cohesion[breaking] = 0.0
-    return x, r, broken | (strong & ~bonded), law, sweeps, g0 + u[:, 0], u
+    residual = kern.law_violation(fr.bi, fr.bj, fr.hi, fr.hj, x, r, law.bn, law.mu,
+                                  law.tension, law.cohesion)
+    return x, r, broken | (strong & ~bonded), law, sweeps, g0 + u[:, 0], u, residual
 
 
 def _moving_bonds(u: np.ndarray, law: _Law, patch: np.ndarray, eps: float) -> np.ndarray:
@@ -412,8 +415,8 @@ def complementarity_step(system: BlockSystem, state: State, contacts: ContactSet
     fr = _frame(system, state, contacts,
                 np.ascontiguousarray(kb[state.awake(system.fixed)]), mass)
     clock = diag.tick("assembly", clock)
-    x, r, broken, law, sweeps1, gap1, u = _position_stage(system, state, contacts, areas, fr,
-                                                          kb, fb)
+    x, r, broken, law, sweeps1, gap1, u, residual = _position_stage(
+        system, state, contacts, areas, fr, kb, fb)
     clock = diag.tick("solve", clock)
     v, sweeps2 = _velocity_stage(system, state, contacts, fr, law, x, r, u, dt)
     clock = diag.tick("open_close", clock)
@@ -442,4 +445,4 @@ def complementarity_step(system: BlockSystem, state: State, contacts: ContactSet
         normal_force=r[:, 0].copy(), shear_force=force - r[:, :1] * contacts.normal,
         friction_work=friction, iterations=sweeps1 + sweeps2,
         numerical_dissipation=normal + kinetic + block_dissipation(system, state, d),
-        broken=broken, velocity=v1, force=force, contact_energy=0.0)
+        broken=broken, velocity=v1, force=force, contact_energy=0.0, residual=residual)

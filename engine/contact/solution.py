@@ -47,3 +47,6 @@ class StepResult:
     force: np.ndarray | None = None
     #: energy (J) the contacts store at the step's end (None: the penalty springs')
     contact_energy: float | None = None
+    #: the complementarity solve's residual: the contact law's largest violation at the end
+    #: of its position stage (m; None: the open-close iteration)
+    residual: float | None = None
