@@ -172,11 +172,14 @@ def _exception_row(base: dict[str, Any], exc: Exception) -> dict[str, Any]:
 
 
 def run_map_one(scene: MapScene, dt: float, k: float, start: str,
-                max_wall: float | None = None) -> dict[str, Any]:
-    """One run of the map: status, stay-put check, energy created, verdict."""
+                max_wall: float | None = None, solver: str = "open_close") -> dict[str, Any]:
+    """One run of the map under the contact `solver`: status, stay-put check, energy
+    created, verdict."""
     offset = STARTS[start]
-    base = {"group": "map", "case": scene.name, "start": start, "dt": dt, "penalty": k}
+    base = {"group": "map", "case": scene.name, "start": start, "dt": dt, "penalty": k,
+            "solver": solver}
     model = scene.build(dt, k, offset)
+    model.controls = dataclasses.replace(model.controls, contact_solver=solver)
     try:
         out = h.run_model(model, record=True, max_wall=max_wall)
     except Exception as exc:  # noqa: BLE001 - an engine exception is a finding, not a crash
@@ -240,15 +243,18 @@ EXAMPLE_SWEEPS = {s.name: s for s in [
 
 
 def run_example_one(sweep: ExampleSweep, dt_factor: float, k_factor: float,
-                    max_wall: float | None = None) -> dict[str, Any]:
-    """One run of an example at factors of its own Δt and penalty."""
+                    max_wall: float | None = None, solver: str = "open_close"
+                    ) -> dict[str, Any]:
+    """One run of an example at factors of its own Δt and penalty, under `solver`."""
     model = _example(sweep.name)
     c = model.controls
     dt, k = c.time_step * dt_factor, c.penalty * k_factor
     model.controls = dataclasses.replace(c, time_step=dt, penalty=k, duration=sweep.duration,
-                                         record_interval=1, record_contacts=False)
+                                         record_interval=1, record_contacts=False,
+                                         contact_solver=solver)
     base = {"group": "example", "case": sweep.name, "sweep": f"Δt×{dt_factor:g} k×{k_factor:g}",
-            "dt_factor": dt_factor, "k_factor": k_factor, "dt": dt, "penalty": k}
+            "dt_factor": dt_factor, "k_factor": k_factor, "dt": dt, "penalty": k,
+            "solver": solver}
     try:
         out = h.run_model(model, record=True, max_wall=max_wall)
     except Exception as exc:  # noqa: BLE001
