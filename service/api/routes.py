@@ -303,8 +303,10 @@ def job_plot(job: JobDep, name: str, settings: SettingsDep) -> FileResponse:
                                          "application/json": {}}},
                        **problem_responses(401, 404, 422)})
 def job_contacts(job: JobDep, settings: SettingsDep,
-                 step: Annotated[int | None, Query(description="solver step (default: last "
-                                                               "recorded)")] = None,
+                 step: Annotated[int | None, Query(
+                     ge=0, le=MAX_STEP, description="a recorded solver step (default: the "
+                     "last recorded; a step not recorded: 422 naming the recorded range)")
+                 ] = None,
                  format: Literal["csv", "json"] = "json") -> Response:
     doc = results.contacts(job, settings, step)
     if format == "csv":
