@@ -14,7 +14,7 @@ import pytest
 
 from engine.contact import complementarity
 from engine.geometry.shapes import box
-from engine.model import AnalysisControls, Block, JointMaterial, Model, PointLoad
+from engine.model import AnalysisControls, Block, JointMaterial, Model
 from engine.step.simulation import STATUS_COMPLETED, STATUS_FAILED, Simulation, run
 from tests.test_simulation import (
     ALPHA,
@@ -27,6 +27,8 @@ from tests.test_simulation import (
     _fall_model,
     _stack_model,
     incline_model,
+    interface_force,
+    pushed_model,
 )
 
 
@@ -95,12 +97,8 @@ def test_stack_of_three_cubes_contact_forces_are_exact() -> None:
     sim = Simulation(cc(_stack_model("rigid"), dynamic_ratio=1.0))
     for _ in range(50):
         res = sim.step()
-    cs = res.contacts
     for upper, expect in ((3, W), (2, 2 * W), (1, 3 * W)):
-        sel = (cs.block_i == upper) | (cs.block_j == upper)
-        lower = upper - 1
-        sel &= (cs.block_i == lower) | (cs.block_j == lower)
-        assert res.normal_force[sel].sum() == pytest.approx(expect, rel=1e-4)
+        assert interface_force(res, upper, upper - 1) == pytest.approx(expect, rel=1e-4)
     assert np.abs(sim.state.centroid[1:, 2] - [0.5, 1.5, 2.5]).max() < 2e-6
 
 
@@ -118,15 +116,7 @@ def test_pushed_block(factor: float, moves: bool) -> None:
     """Case 6: static at 0.95 W tan φ; at 1.5 W tan φ a = (P − μW)/m within 0.5 %."""
     mu = np.tan(np.radians(30))
     p = factor * W * mu
-    model = Model(
-        blocks=[Block(box([-2, -2, -1], [6, 3, 0]), "floor", fixed=True),
-                Block(box([0, 0, 0], [1, 1, 1]), "cube")],
-        joint_materials=[JointMaterial(np.radians(30))],
-        point_loads=[PointLoad(1, np.array([0.0, 0.5, 0.5]), np.array([p, 0.0, 0.0]))],
-        controls=AnalysisControls(duration=1.0, time_step=1e-3,
-                                  contact_solver="complementarity"),
-    )
-    res = run(model)
+    res = run(pushed_model(p, contact_solver="complementarity"))
     assert res.status == STATUS_COMPLETED
     dx = res.state.centroid[1, 0] - 0.5
     if moves:

@@ -195,19 +195,23 @@ def test_fast_block_does_not_tunnel_through_thin_plate() -> None:
     assert res.state.centroid[1, 2] > 0.5 - 0.05  # bottom face never passed the plate's top
 
 
+def pushed_model(p: float, **controls) -> Model:
+    """Case 6: a 1 m cube on a fixed floor (φ 30°) pushed along x by `p` N at mid-height."""
+    return Model(
+        blocks=[Block(box([-2, -2, -1], [6, 3, 0]), "floor", fixed=True),
+                Block(box([0, 0, 0], [1, 1, 1]), "cube")],
+        joint_materials=[JointMaterial(np.radians(30))],
+        point_loads=[PointLoad(1, np.array([0.0, 0.5, 0.5]), np.array([p, 0.0, 0.0]))],
+        controls=AnalysisControls(duration=1.0, time_step=1e-3, **controls),
+    )
+
+
 @pytest.mark.parametrize(("factor", "moves"), [(0.95, False), (1.5, True)])
 def test_pushed_block(factor: float, moves: bool) -> None:
     """Case 6: static at 0.95 W tan φ; at 1.5 W tan φ a = (P − μW)/m within 0.5 %."""
     mu = np.tan(np.radians(30))
     p = factor * W * mu
-    model = Model(
-        blocks=[Block(box([-2, -2, -1], [6, 3, 0]), "floor", fixed=True),
-                Block(box([0, 0, 0], [1, 1, 1]), "cube")],
-        joint_materials=[JointMaterial(np.radians(30))],
-        point_loads=[PointLoad(1, np.array([0.0, 0.5, 0.5]), np.array([p, 0.0, 0.0]))],
-        controls=AnalysisControls(duration=1.0, time_step=1e-3, penalty=1e10),
-    )
-    res = run(model)
+    res = run(pushed_model(p, penalty=1e10))
     assert res.status == STATUS_COMPLETED
     dx = res.state.centroid[1, 0] - 0.5
     if moves:
@@ -229,18 +233,21 @@ def _stack_model(block_model: str, young: float = 1e9) -> Model:
     )
 
 
+def interface_force(res, upper: int, lower: int) -> float:
+    """The total normal force (N) of a step's closed contacts between two blocks."""
+    cs = res.contacts
+    sel = ((cs.block_i == upper) | (cs.block_j == upper)) & (
+        (cs.block_i == lower) | (cs.block_j == lower)) & (cs.mode != OPEN)
+    return float(res.normal_force[sel].sum())
+
+
 def test_stack_of_three_cubes_contact_forces() -> None:
     """Case 5a: normal forces W, 2W, 3W within 0.1 % (quasi-static)."""
     sim = Simulation(_stack_model("rigid"))
     for _ in range(200):
         res = sim.step()
-    cs = res.contacts
     for upper, expect in ((3, W), (2, 2 * W), (1, 3 * W)):
-        sel = (cs.block_i == upper) | (cs.block_j == upper)
-        lower = upper - 1
-        sel &= (cs.block_i == lower) | (cs.block_j == lower)
-        sel &= cs.mode != OPEN
-        assert res.normal_force[sel].sum() == pytest.approx(expect, rel=1e-3)
+        assert interface_force(res, upper, upper - 1) == pytest.approx(expect, rel=1e-3)
 
 
 def test_stack_of_elastic_cubes_average_stress() -> None:

@@ -193,13 +193,9 @@ def local_solve(w: np.ndarray, q: np.ndarray, bn: float, mu: float, tension: flo
 
 
 @njit(cache=True)
-def _contact(c: int, bi: np.ndarray, bj: np.ndarray, hi: np.ndarray, hj: np.ndarray,
-             b_i: np.ndarray, b_j: np.ndarray, w: np.ndarray, bn: np.ndarray,
-             mu: np.ndarray, tension: np.ndarray, cohesion: np.ndarray, r: np.ndarray,
-             x: np.ndarray, u: np.ndarray, q: np.ndarray, old: np.ndarray,
-             out: np.ndarray, alternations: int) -> float:
-    """Solve contact c's local problem against the current `x` and update its blocks;
-    the change's energy `Δrᵀ W Δr`."""
+def _motion(c: int, bi: np.ndarray, bj: np.ndarray, hi: np.ndarray, hj: np.ndarray,
+            x: np.ndarray, u: np.ndarray) -> None:
+    """Contact c's relative motion in its frame, for block motions `x`, into `u (3,)`."""
     a, b = bi[c], bj[c]
     d = x.shape[1]
     for k in range(3):
@@ -211,6 +207,19 @@ def _contact(c: int, bi: np.ndarray, bj: np.ndarray, hi: np.ndarray, hj: np.ndar
             for p in range(d):
                 s += hj[c, k, p] * x[b, p]
         u[k] = s
+
+
+@njit(cache=True)
+def _contact(c: int, bi: np.ndarray, bj: np.ndarray, hi: np.ndarray, hj: np.ndarray,
+             b_i: np.ndarray, b_j: np.ndarray, w: np.ndarray, bn: np.ndarray,
+             mu: np.ndarray, tension: np.ndarray, cohesion: np.ndarray, r: np.ndarray,
+             x: np.ndarray, u: np.ndarray, q: np.ndarray, old: np.ndarray,
+             out: np.ndarray, alternations: int) -> float:
+    """Solve contact c's local problem against the current `x` and update its blocks;
+    the change's energy `Δrᵀ W Δr`."""
+    a, b = bi[c], bj[c]
+    d = x.shape[1]
+    _motion(c, bi, bj, hi, hj, x, u)
     for k in range(3):
         q[k] = u[k] - (w[c, k, 0] * r[c, 0] + w[c, k, 1] * r[c, 1] + w[c, k, 2] * r[c, 2])
         old[k] = r[c, k]
@@ -354,19 +363,9 @@ def nsgs(order: np.ndarray, pptr: np.ndarray, bi: np.ndarray, bj: np.ndarray,
 def relative_motion(bi: np.ndarray, bj: np.ndarray, hi: np.ndarray, hj: np.ndarray,
                     x: np.ndarray) -> np.ndarray:
     """Each contact's relative motion `(c, 3)` in its frame for block motions `x (m, d)`."""
-    c, d = hi.shape[0], x.shape[1]
-    out = np.zeros((c, 3))
-    for k in range(c):
-        a, b = bi[k], bj[k]
-        for e in range(3):
-            s = 0.0
-            if a >= 0:
-                for p in range(d):
-                    s += hi[k, e, p] * x[a, p]
-            if b >= 0:
-                for p in range(d):
-                    s += hj[k, e, p] * x[b, p]
-            out[k, e] = s
+    out = np.zeros((hi.shape[0], 3))
+    for k in range(hi.shape[0]):
+        _motion(k, bi, bj, hi, hj, x, out[k])
     return out
 
 
@@ -412,19 +411,9 @@ def law_violation(bi: np.ndarray, bj: np.ndarray, hi: np.ndarray, hj: np.ndarray
     below its tensile capacity); slip while stuck inside the friction rim; slip not
     opposed to the shear force on the rim."""
     out = 0.0
-    d = x.shape[1]
     u = np.zeros(3)
     for k in range(bi.shape[0]):
-        a, b = bi[k], bj[k]
-        for e in range(3):
-            s = 0.0
-            if a >= 0:
-                for p in range(d):
-                    s += hi[k, e, p] * x[a, p]
-            if b >= 0:
-                for p in range(d):
-                    s += hj[k, e, p] * x[b, p]
-            u[e] = s
+        _motion(k, bi, bj, hi, hj, x, u)
         un = u[0] - bn[k]
         out = max(out, -un)
         if r[k, 0] > -tension[k]:

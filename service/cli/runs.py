@@ -183,6 +183,17 @@ def _trials(args: argparse.Namespace, label: str, what: str, tolerance: float,
     return bar, note
 
 
+def _searched(search: Callable[[], Any], bar: Progress) -> Any:
+    """The result of a strength-reduction `search`; a scene whose trials cannot fail
+    (quasi-static) refused at analysis.mode (exit 2); the progress bar closed either way."""
+    try:
+        return search()
+    except QuasiStatic as exc:  # no trial could fail: refused, exit 2
+        raise SceneError([{"loc": "analysis.mode", "msg": str(exc)}]) from None
+    finally:
+        bar.close()
+
+
 def cmd_fos(args: argparse.Namespace) -> int:
     """Factor of safety by strength reduction (bisection on tan φ / F)."""
     built = load_scene(args.scene)
@@ -190,12 +201,7 @@ def cmd_fos(args: argparse.Namespace) -> int:
     c = fos_controls(built)
     bar, note = _trials(args, f"fos {Path(args.scene).stem}", "F", c.tolerance, c.max_runs,
                         "lo")
-    try:
-        result = factor_of_safety(built.model, c, progress=note)
-    except QuasiStatic as exc:  # no trial could fail: refused, exit 2
-        raise SceneError([{"loc": "analysis.mode", "msg": str(exc)}]) from None
-    finally:
-        bar.close()
+    result = _searched(lambda: factor_of_safety(built.model, c, progress=note), bar)
     doc = fos_document(result, built)
     if args.json:
         print_json(doc)
@@ -236,12 +242,8 @@ def cmd_seismic(args: argparse.Namespace) -> int:
     c = seismic_controls(built)
     bar, note = _trials(args, f"seismic {Path(args.scene).stem}", "kh", c.tolerance,
                         c.max_runs, "hi")
-    try:
-        result = critical_seismic_coefficient(built.model, c, progress=note)
-    except QuasiStatic as exc:  # no trial could fail: refused, exit 2
-        raise SceneError([{"loc": "analysis.mode", "msg": str(exc)}]) from None
-    finally:
-        bar.close()
+    result = _searched(lambda: critical_seismic_coefficient(built.model, c, progress=note),
+                       bar)
     doc = seismic_document(result, built)
     if args.json:
         print_json(doc)
