@@ -448,7 +448,9 @@ def write_report(out: Path, report: Path, meta: dict[str, Any]) -> None:
     parts += [components.components_part(cp) if cp else
               "## 6. Cutting and contact detection on their own\n\n(section not run)", ""]
     cs = h.load_json(out, "contact_solvers")
-    parts += [bench_contact_solvers.report_part(cs, "contact_solvers.png") if cs else
+    parts += [bench_contact_solvers.report_part(cs, "contact_solvers.png",
+                                                h.load_json(out, "trust_complementarity"))
+              if cs else
               "## 7. Contact solvers side by side\n\n(section not run)", ""]
     if sv:
         failures += savings_failures(sv)

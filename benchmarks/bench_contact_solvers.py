@@ -127,9 +127,8 @@ def mujoco(n: int, steps: int) -> dict | None:
     """MuJoCo on the pile of `n` for `steps` steps of 1 ms, or None when not installed."""
     try:
         from benchmarks.peers import mujoco_pile
-        from benchmarks.pile import pile_path
 
-        r = mujoco_pile(pile_path(n), dt=1e-3, duration=steps * 1e-3)
+        r = mujoco_pile(n, dt=1e-3, duration=steps * 1e-3)
     except ImportError:
         return None
     return {"blocks": n, "solver": "MuJoCo", "steps": steps, "wall_s": r["wall_s"],
@@ -165,7 +164,7 @@ def plot(data: dict, out: Path) -> str:
     ax2.text(40, 70, "issue 29's target: 1 s in 60 s", fontsize=7)
     ax2.set_xlabel("free blocks")
     ax2.set_ylabel("wall per simulated second (s)")
-    ax2.set_title("cut rock masses and piles (first steps)")
+    ax2.set_title("cut rock masses (10 steps) and piles (their second)")
     ax2.legend(fontsize=7)
     fig.tight_layout()
     name = "contact_solvers.png"
@@ -179,8 +178,9 @@ def _maybe(value: float | None) -> str:
     return "" if value is None else f"{value:.1e}"
 
 
-def report_part(data: dict, chart: str) -> str:
-    """REPORT.md's section on the two contact solvers."""
+def report_part(data: dict, chart: str, trust: dict | None = None) -> str:
+    """REPORT.md's section on the two contact solvers (with the stability map v2 under the
+    complementarity solve, `trust`, when it has been run)."""
     lines = ["## 7. Contact solvers side by side (issue 29)", "",
              "`python -m benchmarks.bench_contact_solvers 10`: both solvers on the same cases "
              "in one run (asked Δt 1 ms, each case in its own process: the rock masses 10 "
@@ -209,8 +209,27 @@ def report_part(data: dict, chart: str) -> str:
                 f"{_maybe(r.get('residual_max'))} | "
                 f"{r['mean_dt']:.2g} | "
                 f"{r['per_sim_second_s']:.3g} | {r['rss_peak_mb']:.0f} | {r['status']} |")
+    if data.get("note"):
+        lines += ["", f"Note: {data['note']}."]
     lines += ["", f"![contact solvers](results/{chart})", ""]
+    if trust:
+        from collections import Counter
+
+        counts = Counter((r["case"], r["verdict"]) for r in trust["rows"])
+        lines += ["Stability map v2 under the complementarity solve "
+                  "(`python -m benchmarks.bench_trust_complementarity`: the stay-put scenes "
+                  "over Δt 0.1 / 1 / 10 ms × four starts, the examples at ×0.1 / ×1 / ×10 "
+                  "their Δt):", "", "| scene | verdict | runs |", "|---|---|---|"]
+        lines += [f"| {case} | {verdict} | {n} |" for (case, verdict), n in
+                  sorted(counts.items())]
+        lines.append("")
     return "\n".join(lines)
+
+
+def _save(out: dict) -> None:
+    """Write what has been measured so far (a later case that crashes loses only itself)."""
+    OUT.parent.mkdir(exist_ok=True)
+    OUT.write_text(json.dumps(out, indent=1))
 
 
 def main() -> None:
@@ -234,6 +253,7 @@ def main() -> None:
                 r = {"solver": solver, "status": "error", "message": str(exc)[-300:]}
             r["case"] = name
             out["speed"].append(r)
+            _save(out)
             if r.get("status") == "error":
                 print(f"{name:16s} {solver:16s} error {r['message']}", flush=True)
                 continue
@@ -251,8 +271,7 @@ def main() -> None:
                 out["speed"].append(mj)
                 print(f"{name:16s} MuJoCo           {mj['per_sim_second_s']:.4g} s per "
                       "simulated s", flush=True)
-    OUT.parent.mkdir(exist_ok=True)
-    OUT.write_text(json.dumps(out, indent=1))
+    _save(out)
     plot(out, OUT.parent)
 
 
