@@ -13,22 +13,11 @@ from pathlib import Path
 
 import pytest
 
+from benchmarks.bench_startup import cubes
 from service.cli.main import main
 
 ROOT = Path(__file__).resolve().parent.parent
 EXAMPLES = ROOT / "examples"
-CUBE_FACES = [[0, 3, 2, 1], [4, 5, 6, 7], [0, 1, 5, 4], [1, 2, 6, 5], [2, 3, 7, 6], [3, 0, 4, 7]]
-
-
-def cubes(n: int, gap: float = 0.5) -> dict:
-    """A scene of `n` unit cubes on a square grid, `gap` m apart, the first one fixed."""
-    side = int(n ** 0.5) + 1
-    blocks = []
-    for i in range(n):
-        x, y = (1 + gap) * (i % side), (1 + gap) * (i // side)
-        v = [[x + a, y + b, c] for c in (0, 1) for a, b in ((0, 0), (1, 0), (1, 1), (0, 1))]
-        blocks.append({"name": f"c{i}", "vertices": v, "faces": CUBE_FACES, "fixed": i == 0})
-    return {"blocks": blocks}
 
 
 def run(capsys: pytest.CaptureFixture[str], *argv: str) -> tuple[int, str, str]:

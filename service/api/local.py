@@ -52,17 +52,11 @@ def result_parts(path: Path, work_dir: Path, threshold: float | None = None) -> 
     `work_dir` and carried inline (data: URIs), so the page stands alone."""
     from engine.results.plots import plot_all
     from engine.results.reader import open_result
-    from service.api.results import kinematics_part, png_uri, scene_of
+    from service.api.results import kinematics_part, png_uri, result_meta, scene_of
 
     with open_result(path) as r:
         scene_text = r.scene_json or ""
-        meta: dict[str, Any] = {"engine_version": r.engine_version,
-                                "schema_version": r.schema_version or "–",
-                                "scene_sha256": r.scene_sha256 or "–",
-                                "fixed": r.fixed.tolist(), "volume": r.volume.tolist(),
-                                "n_steps": r.n_steps}
-        if r.n_steps:
-            meta["last"] = {"time": float(r.times[-1]), "step": int(r.steps[-1])}
+        meta = result_meta(r)
         summary = r.summary
         status, message = r.status, r.message
         pngs = plot_all(r, work_dir / "plots")

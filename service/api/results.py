@@ -236,6 +236,20 @@ def contacts(job: JobRecord, settings: Settings, step: int | None) -> dict[str, 
                           exc.message) from None
 
 
+def result_meta(r: Any) -> dict[str, Any]:
+    """What a report says of an open result file `r` (engine.results.reader.Result): its
+    versions, the scene's hash, the blocks' fixity and volumes, the steps recorded and the
+    last one."""
+    meta: dict[str, Any] = {"engine_version": r.engine_version,
+                            "schema_version": r.schema_version or "–",
+                            "scene_sha256": r.scene_sha256 or "–",
+                            "fixed": r.fixed.tolist(), "volume": r.volume.tolist(),
+                            "n_steps": r.n_steps}
+    if r.n_steps:
+        meta["last"] = {"time": float(r.times[-1]), "step": int(r.steps[-1])}
+    return meta
+
+
 def live_result(job: JobRecord, settings: Settings) -> Path:
     """The job's result.h5 as it is now: also while running (the steps written so far);
     404 while it has none yet (Retry-After when it may come)."""
@@ -292,13 +306,7 @@ def report(job: JobRecord, settings: Settings, scene_text: str, root: str) -> st
 
         names = [p.name for p in plots(job, settings)]
         with open_result(d / RESULT_FILE) as r:
-            meta = {"engine_version": r.engine_version,
-                    "schema_version": r.schema_version or "–",
-                    "scene_sha256": r.scene_sha256 or "–",
-                    "fixed": r.fixed.tolist(), "volume": r.volume.tolist(),
-                    "n_steps": r.n_steps}
-            if r.n_steps:
-                meta["last"] = {"time": float(r.times[-1]), "step": int(r.steps[-1])}
+            meta = result_meta(r)
         if "snapshot_final.png" in names:  # the blocks at the last recorded step
             names.remove("snapshot_final.png")
             snapshot = png_uri(d / "plots" / "snapshot_final.png")
