@@ -30,7 +30,7 @@ import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
-import engine.contact.open_close as oc
+import engine.contact.solvers.open_close as oc
 from benchmarks.timestep import jointed_cube
 from engine.dynamics.solver import BlockJacobi
 from engine.step.simulation import Simulation

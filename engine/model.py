@@ -104,9 +104,9 @@ class AnalysisControls:
     fixed_point_penalty: float | None = None
     record_contacts: bool = True
     #: how each step's contacts are solved: "open_close", the paper's open-close iteration
-    #: on penalty springs (:mod:`engine.contact.open_close`), or "complementarity", one
+    #: on penalty springs (:mod:`engine.contact.solvers.open_close`), or "complementarity", one
     #: solve of the frictional contact problem without springs
-    #: (:mod:`engine.contact.complementarity`)
+    #: (:mod:`engine.contact.solvers.complementarity`)
     contact_solver: Literal["open_close", "complementarity"] = "open_close"
     #: the complementarity solve's convergence: the change of the blocks' motion in a sweep
     #: relative to the motion the contacts cause (energy norm)

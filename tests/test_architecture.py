@@ -78,10 +78,10 @@ def test_architecture_page_names_what_the_code_has() -> None:
     pipeline lists, in its order."""
     page = (ROOT / "docs" / "architecture.md").read_text()
     pipeline = page.split("## One step", 1)[1].split("```")[1]
-    names = re.findall(rf"\b({'|'.join(ROOMS)})/([a-z_]+)\.([A-Za-z_]+)", pipeline)
+    names = re.findall(rf"\b({'|'.join(ROOMS)})/((?:[a-z_]+/)*[a-z_]+)\.([A-Za-z_]+)", pipeline)
     assert len(names) >= 10
     for room, module, attr in names:
-        mod = importlib.import_module(f"engine.{room}.{module}")
+        mod = importlib.import_module(f"engine.{room}.{module.replace('/', '.')}")
         assert hasattr(mod, attr), f"{room}/{module}.{attr}"
     tree = page.split("## The tree", 1)[1].split("```")[1]
     listed = set(re.findall(r"^\s+(_?[a-z_]+)(?:\.py)?\s", tree, re.M))

@@ -12,7 +12,7 @@ import dataclasses
 import numpy as np
 import pytest
 
-from engine.contact import complementarity
+from engine.contact.solvers import complementarity
 from engine.geometry.shapes import box
 from engine.model import AnalysisControls, Block, JointMaterial, Model
 from engine.step.simulation import STATUS_COMPLETED, STATUS_FAILED, Simulation, run

@@ -10,8 +10,8 @@ import numpy as np
 import pytest
 import scipy.linalg as sla
 
-from engine.contact._open_close_kernels import contact_loads, step_results, update_modes
 from engine.contact.constraints import LOCKED, OPEN, SLIDING
+from engine.contact.solvers._open_close_kernels import contact_loads, step_results, update_modes
 from engine.dynamics import assembly as asm
 from engine.dynamics._solver_kernels import cholesky, cholesky_solve, invert_spd_blocks, pcg_bsr
 from engine.dynamics.state import load_state, save_state
@@ -249,7 +249,7 @@ def test_reseat_loss_books_what_springs_lost_between_steps_not_gains() -> None:
     with is booked as dissipation; a spring starting with more is left to the watchdog."""
     from types import SimpleNamespace
 
-    from engine.contact.open_close import reseat_loss
+    from engine.contact.solvers.open_close import reseat_loss
 
     system = SimpleNamespace(kn=1e9, ks=5e8)
     t = SimpleNamespace(d0=np.array([-1e-5, 2e-6]), shear0=np.array([[2e-6, 0.0, 0.0],
@@ -284,7 +284,7 @@ def test_dashpots_after_the_step_go_to_rings_and_rebounds() -> None:
     from types import SimpleNamespace
 
     from engine.contact.constraints import ContactSet
-    from engine.contact.damping import ringing
+    from engine.contact.solvers.damping import ringing
 
     c = 4
     contacts = ContactSet(

@@ -6,7 +6,7 @@ edge-edge contacts of two faces lying against each other) form a *patch* whose a
 convex hull of their points in that plane; each constraint carries an equal share of it.
 The patch is one bond: it carries c·A in shear as a whole, so it slips (and loses its bond)
 only when the patch's total shear force exceeds `Σ tan φ N + c A_bonded`, not vertex by
-vertex (engine.contact._open_close_kernels.update_modes). Tension stays local: a constraint
+vertex (engine.contact.solvers._open_close_kernels.update_modes). Tension stays local: a constraint
 pulled beyond its share σt·A/n opens and breaks its share of the bond, which is how a bond
 under bending or toppling really fails, from the edge in (progressively; counted per step by
 :func:`bond_breaks` and said in the run's summary).

@@ -1,4 +1,4 @@
-"""Compiled loops of the complementarity contact solve (:mod:`engine.contact.complementarity`):
+"""Compiled loops of the complementarity contact solve (:mod:`.complementarity`):
 each contact's operators in its local frame (normal, two tangents), the local 3 × 3
 frictional contact problem, and the non-smooth Gauss–Seidel sweeps over contacts.
 

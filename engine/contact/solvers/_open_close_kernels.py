@@ -4,7 +4,7 @@ and the mode update of the paper's Table 2 (with first entrance for contacts tha
 Each cycle of a step's open-close iteration (~10 per step) ran these as some sixty numpy
 calls over the contact arrays; for a few contacts the calls' overhead was the whole cost,
 for thousands a fifth of the step. Compiled with numba (cached on disk). The rules are
-those documented in :mod:`engine.contact.open_close`.
+those documented in :mod:`engine.contact.solvers.open_close`.
 """
 
 from __future__ import annotations

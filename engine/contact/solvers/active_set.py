@@ -21,7 +21,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from engine.contact import _complementarity_kernels as kern
+import engine.contact.solvers._complementarity_kernels as kern
 from engine.dynamics import assembly as asm
 from engine.dynamics.solver import BlockJacobi, SolveError, make_solver
 from engine.status import StepFailure

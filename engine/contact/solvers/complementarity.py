@@ -36,11 +36,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from engine.contact import _complementarity_kernels as kern
-from engine.contact.active_set import Primal, active_set_step
+import engine.contact.solvers._complementarity_kernels as kern
 from engine.contact.constraints import LOCKED, OPEN, SLIDING, ContactSet
 from engine.contact.patches import patch_ids, sweep_order
 from engine.contact.solution import StepResult
+from engine.contact.solvers.active_set import Primal, active_set_step
 from engine.dynamics.block_terms import block_dissipation, block_terms, bolt_links
 from engine.dynamics.state import State
 from engine.dynamics.system import BlockSystem

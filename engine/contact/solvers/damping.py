@@ -27,8 +27,8 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from engine.contact.constraints import LOCKED, OPEN, ContactSet
-from engine.contact.open_close import contact_damping
 from engine.contact.solution import StepResult
+from engine.contact.solvers.open_close import contact_damping
 from engine.dynamics import assembly as asm
 from engine.dynamics.block_terms import kinetic_energy
 from engine.dynamics.motion import mass_matrices

@@ -6,12 +6,12 @@ dashpots' place)."""
 
 from __future__ import annotations
 
-from engine.contact.complementarity import complementarity_step
 from engine.contact.constraints import ContactSet
-from engine.contact.damping import damp_contacts
-from engine.contact.open_close import initial_modes, open_close_iteration
 from engine.contact.patches import ContactPatches
 from engine.contact.solution import StepResult
+from engine.contact.solvers.complementarity import complementarity_step
+from engine.contact.solvers.damping import damp_contacts
+from engine.contact.solvers.open_close import initial_modes, open_close_iteration
 from engine.dynamics.state import State
 from engine.dynamics.system import BlockSystem
 

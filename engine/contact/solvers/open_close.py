@@ -23,16 +23,16 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from engine.contact._open_close_kernels import (
+from engine.contact.constraints import LOCKED, OPEN, SLIDING, ContactSet
+from engine.contact.patches import ContactPatches, bond_breaks
+from engine.contact.solution import StepResult
+from engine.contact.solvers._open_close_kernels import (
     FINAL_SLIDE,
     contact_loads,
     step_results,
     update_modes,
 )
-from engine.contact._open_close_kernels import initial_modes as _initial_modes
-from engine.contact.constraints import LOCKED, OPEN, SLIDING, ContactSet
-from engine.contact.patches import ContactPatches, bond_breaks
-from engine.contact.solution import StepResult
+from engine.contact.solvers._open_close_kernels import initial_modes as _initial_modes
 from engine.dynamics import assembly as asm
 from engine.dynamics._assembly_kernels import relative_displacement
 from engine.dynamics.block_terms import block_dissipation, block_terms, bolt_links, kinetic_energy
@@ -183,7 +183,7 @@ def _terms(system: BlockSystem, state: State, contacts: ContactSet,
     bi, bj = contacts.block_i, contacts.block_j
     jm = contacts.joint_material
     # only the normal dashpot acts inside the solve: a shear dashpot on a locked contact is
-    # viscous static friction (the shear dashpots after the step, engine.contact.damping,
+    # viscous static friction (the shear dashpots after the step, engine.contact.solvers.damping,
     # keep theirs)
     cn, _ = contact_damping(system, state, bi, bj)
     return _Terms(
