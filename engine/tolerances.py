@@ -14,6 +14,7 @@ class Lengths:
     on_plane: float
     feature_snap: float
     touching: float
+    bonding: float
 
 
 @dataclass(frozen=True)
@@ -34,6 +35,10 @@ class Tolerances:
     feature_snap: float = 1e-6
     #: a new contact whose gap is below this (relative) touches and starts closed
     touching: float = 1e-9
+    #: joint faces of a cohesive or tensile joint closer than this (relative) at the start of
+    #: a run are bonded: the resolution of coordinates a user writes (a block given "on" a
+    #: plane to 5 decimals sits up to 1e-5 m above it); a contact that forms later is not
+    bonding: float = 1e-6
     #: a contact force below this fraction of the lighter block's weight is round-off: the
     #: open-close iteration neither opens a closed contact nor closes an open one on it
     #: (a fraction of the weight, not a length, so that it means the same at any penalty). A
@@ -54,7 +59,7 @@ class Tolerances:
         """The length tolerances in metres for a model of size `scale` (m)."""
         s = max(float(scale), 1e-12)
         return Lengths(self.point_merge * s, self.planarity * s, self.on_plane * s,
-                       self.feature_snap * s, self.touching * s)
+                       self.feature_snap * s, self.touching * s, self.bonding * s)
 
 
 DEFAULT_TOLERANCES = Tolerances()

@@ -44,7 +44,7 @@ from engine.dynamics.state import State
 from engine.geometry._transform_kernels import block_vertices
 from engine.model import DISPLACEMENT_LIMIT_RATIO, JointMaterial, Model
 from engine.status import STATUS_COMPLETED, STATUS_FAILED, StepFailure
-from engine.step import energy
+from engine.step import energy, sleep
 from engine.step.simulation import Simulation
 
 #: joints that cannot fail while the model settles: tan φ and cohesion (Pa)
@@ -237,6 +237,7 @@ def run_trial(model: Model, value: float, start: Settled) -> tuple[TrialRun, Set
     m = dataclasses.replace(model, controls=dataclasses.replace(
         model.controls, duration=t0 + model.controls.duration, record_contacts=False))
     sim = Simulation(m, state=state)
+    sleep.wake_all(sim.system, sim.state)  # a trial never starts asleep
     w = _Watch(sim, start.watch)
     end = m.controls.duration - 1e-12 * max(m.controls.duration, 1.0)
     peak, rest, steps = 0.0, 0, 0

@@ -27,6 +27,8 @@ import numpy as np
 from scipy.spatial import ConvexHull, QhullError
 
 from engine.contact.constraints import ContactSet
+from engine.dynamics.state import State
+from engine.dynamics.system import BlockSystem
 
 #: normals of one patch agree to 1 / this (their components are rounded to it)
 NORMAL_SCALE = 1e6
@@ -129,3 +131,20 @@ def bond_breaks(patches: ContactPatches, broken_start: np.ndarray,
     after = np.bincount(p, weights=~broken_end[inside], minlength=len(patches))
     lost = after < before
     return int(np.sum(lost & (after == 0))), int(np.sum(lost & (after > 0)))
+
+
+def bonded_at_start(system: BlockSystem, state: State, contacts: ContactSet
+                    ) -> tuple[np.ndarray, np.ndarray]:
+    """Which contacts' joints have cohesion or tensile strength `(c,)`, and which of them
+    start the step bonded `(c,)`: they touched at the start of the run (within the bond gap,
+    the resolution of a scene's coordinates) or kept their bond since (a contact that forms
+    later has friction only). One rule for every contact solver."""
+    jm = contacts.joint_material
+    strong = (system.cohesion[jm] > 0) | (system.tension[jm] > 0)
+    if state.step == 0:
+        return strong, strong & (contacts.gap <= system.bond_gap)
+    row = state.memory.find(contacts.key)
+    kept = np.zeros(len(contacts), dtype=bool)
+    again = row >= 0
+    kept[again] = ~state.memory.broken[row[again]]
+    return strong, strong & kept

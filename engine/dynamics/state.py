@@ -11,7 +11,7 @@ import dataclasses
 import json
 import os
 import time as _time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, fields
 from typing import Any
 
 import numpy as np
@@ -24,7 +24,7 @@ def _row_keys(key: np.ndarray) -> np.ndarray:
 
 
 #: the arrays of a :class:`ContactMemory`, in its field order
-MEMORY_FIELDS = ("key", "mode", "shear", "tangent", "broken", "gap", "force")
+MEMORY_FIELDS = ("key", "mode", "shear", "tangent", "broken", "gap", "force", "joint_material")
 
 
 @dataclass
@@ -35,7 +35,8 @@ class ContactMemory:
     tangential displacement `shear (m, 3)` m, sliding direction `tangent (m, 3)`,
     `broken (m,)` (cohesion and tensile strength lost), the end-of-step `gap (m,)` m and
     the contact `force (m, 3)` N on block i (the complementarity solve's warm start; zero
-    from the open-close iteration).
+    from the open-close iteration) and each contact's `joint_material (m,)` (-1: not known;
+    what a change of a joint's strength wakes, :func:`engine.step.sleep.reconcile`).
     """
 
     key: np.ndarray = field(default_factory=lambda: np.zeros((0, 4), dtype=np.int64))
@@ -45,10 +46,14 @@ class ContactMemory:
     broken: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=bool))
     gap: np.ndarray = field(default_factory=lambda: np.zeros(0))
     force: np.ndarray | None = None
+    joint_material: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         if self.force is None:
             self.force = np.zeros((len(self.key), 3))
+        if self.joint_material is None:
+            self.joint_material = np.full(len(self.key), -1, dtype=np.int64)
+
         order = np.argsort(_row_keys(self.key), kind="stable")
         for name in MEMORY_FIELDS:
             setattr(self, name, getattr(self, name)[order])
@@ -61,6 +66,18 @@ class ContactMemory:
         q = _row_keys(key)
         pos = np.minimum(np.searchsorted(self._sorted, q), len(self._sorted) - 1)
         return np.where(self._sorted[pos] == q, pos, -1)
+
+    def rows(self, index: np.ndarray) -> ContactMemory:
+        """The memory of the contacts `index` (boolean mask or rows), every field kept."""
+        return ContactMemory(**{name: getattr(self, name)[index] for name in MEMORY_FIELDS})
+
+    def renumbered(self, new_index: np.ndarray) -> ContactMemory:
+        """The memory with its blocks renumbered by `new_index (n_old,)` (a stage's kept
+        blocks; every contact's blocks must be kept)."""
+        key = self.key.copy()
+        key[:, 0], key[:, 2] = new_index[key[:, 0]], new_index[key[:, 2]]
+        return ContactMemory(**{name: key if name == "key" else getattr(self, name)
+                                for name in MEMORY_FIELDS})
 
 
 def _zero_energies() -> dict[str, float]:
@@ -119,6 +136,13 @@ class Diagnostics:
         return now
 
 
+#: field metadata of the State's arrays with one row per block, and with one row per bolt:
+#: a stage that removes blocks keeps their rows (:func:`State.take_blocks`), a checkpoint
+#: saves them and a resume loads them (:func:`save_state`, :func:`load_state`), by this mark
+PER_BLOCK = {"rows": "block"}
+PER_BOLT = {"rows": "bolt"}
+
+
 @dataclass
 class State:
     """Everything that changes from step to step. Shapes: `n` blocks.
@@ -131,32 +155,40 @@ class State:
     the accumulated works and dissipations (J).
     """
 
-    centroid: np.ndarray
-    affine: np.ndarray
-    rotation: np.ndarray
-    velocity: np.ndarray
-    stress: np.ndarray
+    centroid: np.ndarray = field(metadata=PER_BLOCK)
+    affine: np.ndarray = field(metadata=PER_BLOCK)
+    rotation: np.ndarray = field(metadata=PER_BLOCK)
+    velocity: np.ndarray = field(metadata=PER_BLOCK)
+    stress: np.ndarray = field(metadata=PER_BLOCK)
     time: float = 0.0
     step: int = 0
     dt: float = 0.0
     last_dt: float = 0.0
     memory: ContactMemory = field(default_factory=ContactMemory)
-    last_d: np.ndarray | None = None
-    deepest: np.ndarray | None = None
+    last_d: np.ndarray | None = field(default=None, metadata=PER_BLOCK)
+    deepest: np.ndarray | None = field(default=None, metadata=PER_BLOCK)
     energies: dict[str, float] = field(default_factory=_zero_energies)
     #: J held by the contact springs at the end of the last step
     contact_energy: float = 0.0
     #: rock bolts (None without): plastic elongation `(b,)` m, shear force on the head
     #: block `(b, 3)` N, state `(b,)` (:data:`engine.loads.bolts.ELASTIC`, YIELDED, BROKEN)
-    bolt_plastic: np.ndarray | None = None
-    bolt_shear: np.ndarray | None = None
-    bolt_status: np.ndarray | None = None
+    bolt_plastic: np.ndarray | None = field(default=None, metadata=PER_BOLT)
+    bolt_shear: np.ndarray | None = field(default=None, metadata=PER_BOLT)
+    bolt_status: np.ndarray | None = field(default=None, metadata=PER_BOLT)
     #: blocks asleep `(n,)` (out of the solve, at rest with their contact forces kept;
     #: None: all awake) and how long each has been quiet `(n,)` s (engine.step.sleep)
-    asleep: np.ndarray | None = None
-    quiet: np.ndarray | None = None
+    asleep: np.ndarray | None = field(default=None, metadata=PER_BLOCK)
+    quiet: np.ndarray | None = field(default=None, metadata=PER_BLOCK)
     #: each sleeping block's change of contact resultant since it fell asleep `(n, 6)` N
-    drift: np.ndarray | None = None
+    drift: np.ndarray | None = field(default=None, metadata=PER_BLOCK)
+    #: what each block's sleep rests on `(n, 7)`: fixed (1) or not (0), and the resultant of
+    #: its point loads and fixed points (force N, moment N·m); NaN where a stage changed its
+    #: neighbours (engine.step.sleep.basis; None: nothing has slept)
+    sleep_loads: np.ndarray | None = field(default=None, metadata=PER_BLOCK)
+    #: the joint strengths `(j, 3)` (tan φ, c Pa, σt Pa) and the body acceleration `(3,)`
+    #: m/s² the sleeping islands fell asleep under (None: nothing has slept)
+    sleep_joints: np.ndarray | None = field(default=None, metadata={"rows": "joint"})
+    sleep_body: np.ndarray | None = field(default=None, metadata={"rows": "whole"})
     diagnostics: Diagnostics = field(default_factory=Diagnostics)
     #: values derived from this state, computed once (not saved)
     cache: dict[str, Any] = field(default_factory=dict, repr=False, compare=False)
@@ -164,6 +196,19 @@ class State:
     def awake(self, fixed: np.ndarray) -> np.ndarray:
         """The blocks that move in the next step `(n,)`: free and not asleep."""
         return ~fixed if self.asleep is None else ~fixed & ~self.asleep
+
+    def take_blocks(self, rows: np.ndarray) -> dict[str, np.ndarray | None]:
+        """Every per-block array cut to the blocks `rows` (copies; None stays None): what a
+        stage that removes blocks carries over (:data:`PER_BLOCK`)."""
+        return {name: None if getattr(self, name) is None else getattr(self, name)[rows].copy()
+                for name in state_arrays("block")}
+
+
+def state_arrays(rows: str | None = None) -> tuple[str, ...]:
+    """The State's array fields with one row per `rows` ("block", "bolt", "joint",
+    "whole"; None: all of them), in field order."""
+    return tuple(f.name for f in fields(State) if "rows" in f.metadata
+                 and (rows is None or f.metadata["rows"] == rows))
 
 
 def initial_state(centroid: np.ndarray, velocity: np.ndarray, dt: float) -> State:
@@ -174,14 +219,13 @@ def initial_state(centroid: np.ndarray, velocity: np.ndarray, dt: float) -> Stat
                  stress=np.zeros((n, 6)), dt=dt, last_dt=dt)
 
 
-_ARRAYS = ("centroid", "affine", "rotation", "velocity", "stress", "last_d", "deepest",
-           "bolt_plastic", "bolt_shear", "bolt_status", "asleep", "quiet", "drift")
 _SCALARS = ("time", "step", "dt", "last_dt", "contact_energy")
 
 
 def save_state(state: State, path: str | os.PathLike[str]) -> None:
     """Write `state` to `path` (a `.npz` file of plain arrays; floats kept bit for bit)."""
-    arrays = {name: getattr(state, name) for name in _ARRAYS if getattr(state, name) is not None}
+    arrays = {name: getattr(state, name) for name in state_arrays()
+              if getattr(state, name) is not None}
     arrays.update({f"memory_{name}": getattr(state.memory, name) for name in MEMORY_FIELDS})
     meta = {name: getattr(state, name) for name in _SCALARS}
     meta.update(energies=state.energies, diagnostics=dataclasses.asdict(state.diagnostics))
@@ -193,7 +237,7 @@ def load_state(path: str | os.PathLike[str]) -> State:
     """The :class:`State` written by :func:`save_state`."""
     with np.load(path, allow_pickle=False) as z:
         meta = json.loads(str(z["meta"]))
-        arrays = {name: z[name] if name in z.files else None for name in _ARRAYS}
+        arrays = {name: z[name] if name in z.files else None for name in state_arrays()}
         memory = ContactMemory(**{name: z[f"memory_{name}"] for name in MEMORY_FIELDS
                                   if f"memory_{name}" in z.files})
     diagnostics = Diagnostics(**meta["diagnostics"])

@@ -33,6 +33,7 @@ class BlockSystem:
     - `thickness (n,)` 2V/A m, `radius (n,)` m (farthest surface vertex from the centroid)
     - `max_step_displacement` m: no point moves more in a step; `search_distance` m
     - `touch_gap` m: closer blocks touch; `open_close_gap` m: the open-close hysteresis
+    - `bond_gap` m: joint faces closer at the start are bonded (cohesion, tensile strength)
     - `tan_phi`, `cohesion` (Pa), `tension` (Pa) per joint material
     - `gravity` m/s²: body force per unit mass (gravity plus any pseudo-static seismic
       load, :attr:`engine.model.Model.body_acceleration`)
@@ -71,6 +72,7 @@ class BlockSystem:
     max_step_displacement: float
     search_distance: float
     touch_gap: float
+    bond_gap: float
     open_close_gap: float
     tan_phi: np.ndarray
     cohesion: np.ndarray
@@ -175,6 +177,7 @@ def build_system(model: Model, adaptive_search: bool = True) -> BlockSystem:
                                         axis=1).max() for p in polys]),
         max_step_displacement=max_step, search_distance=2.0 * max_step,
         touch_gap=DEFAULT_TOLERANCES.lengths(scale).touching,
+        bond_gap=DEFAULT_TOLERANCES.lengths(scale).bonding,
         open_close_gap=c.open_close_tolerance * max_step,
         tan_phi=np.array([np.tan(j.friction_angle_rad) for j in model.joint_materials]),
         cohesion=cohesion, tension=tension,

@@ -69,7 +69,8 @@ def _memory(system: BlockSystem, state: State, res: StepResult) -> ContactMemory
     new = ContactMemory(key=cs.key[keep], mode=cs.mode[keep], shear=res.shear[keep],
                         tangent=tangent, broken=broken[keep] | (cs.mode[keep] != LOCKED),
                         gap=res.gap1[keep],
-                        force=None if res.force is None else res.force[keep])
+                        force=None if res.force is None else res.force[keep],
+                        joint_material=cs.joint_material[keep])
     if state.asleep is None or not np.any(state.asleep):
         return new
     mem, awake = state.memory, state.awake(system.fixed)

@@ -85,6 +85,8 @@ class Simulation:
                  state: State | None = None) -> None:
         self.system = build_system(model, adaptive_search)
         self.state = _start_state(self.system) if state is None else state
+        if state is not None:  # another model's state (a trial, a stage) wakes what it must
+            sleep.reconcile(self.system, self.state)
 
     def step(self) -> StepResult:
         """Advance one step, cutting Δt as needed (StepFailure below the smallest Δt)."""

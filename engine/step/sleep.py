@@ -15,6 +15,15 @@ the step is then solved again with it awake, so the wake costs no motion. Blocks
 bolts, deformable blocks (their stresses relax slower than a rigid block comes to rest),
 scenes with water (whose pressures follow the neighbours) and scenes under ground motion
 never sleep.
+
+A sleeping island rests on what held when it fell asleep: its joints' strengths, the body
+acceleration (gravity and seismic coefficients), its blocks' point loads and fixed points,
+and its neighbours. The state records that basis (:func:`record_basis`); a simulation that
+starts from a state under another model (a strength-reduction or seismic trial, a stage)
+wakes every island whose basis the new model changes (:func:`reconcile`): a weaker joint
+wakes the islands with a contact on it, another body acceleration wakes every island, a
+changed load wakes its block's island, and a stage that removes or fixes a block wakes the
+islands of its neighbours (:func:`forget_basis`). A trial never starts asleep.
 """
 
 from __future__ import annotations
@@ -26,7 +35,7 @@ from scipy.sparse.csgraph import connected_components
 from engine.contact.constraints import LOCKED
 from engine.contact.solution import StepResult
 from engine.dynamics.motion import mass_matrices, mass_properties
-from engine.dynamics.state import State
+from engine.dynamics.state import ContactMemory, State
 from engine.dynamics.system import BlockSystem
 
 #: a sleeping block's contacts must hold this far inside their capacity
@@ -43,7 +52,7 @@ class Wake(Exception):
 def enabled(system: BlockSystem) -> bool:
     """Whether blocks of this run may sleep."""
     c = system.controls
-    return (c.contact_solver == "complementarity" and c.sleep_velocity > 0
+    return (c.contact_solver in ("complementarity", "newton") and c.sleep_velocity > 0
             and not system.elastic and system.water is None
             and system.model.ground_motion is None)
 
@@ -57,6 +66,117 @@ def _resultants(system: BlockSystem, state: State, block: np.ndarray, point: np.
     arm = point - state.centroid[block]
     np.add.at(out[:, 3:], block, np.cross(arm, force) / system.radius[block, None])
     return out
+
+
+def basis_loads(system: BlockSystem) -> np.ndarray:
+    """What each block's sleep rests on `(n, 7)`: fixed (1) or not (0), then the resultant
+    force (N) and moment about its initial centroid (N·m) of its point loads, with one unit
+    of force per fixed point (a fixed point added or removed changes it)."""
+    out = np.zeros((system.n, 7))
+    out[:, 0] = system.fixed
+    for b, p0, f in system.loads:
+        out[b, 1:4] += f
+        out[b, 4:7] += np.cross(p0 - system.c0[b], f)
+    for b, p0 in system.fixed_points:
+        out[b, 1:4] += 1.0
+        out[b, 4:7] += p0 - system.c0[b]
+    return out
+
+
+def _joint_strengths(system: BlockSystem) -> np.ndarray:
+    """The joint materials' strengths `(j, 3)`: tan φ, cohesion (Pa), tensile strength (Pa)."""
+    return np.column_stack([system.tan_phi, system.cohesion, system.tension])
+
+
+def record_basis(system: BlockSystem, state: State) -> None:
+    """Record in `state` what its sleeping islands rest on under `system` (see the module's
+    docstring)."""
+    state.sleep_loads = basis_loads(system)
+    state.sleep_joints = _joint_strengths(system)
+    state.sleep_body = np.asarray(system.gravity, float).copy()
+
+
+def forget_basis(arrays: dict[str, np.ndarray | None], blocks: np.ndarray) -> None:
+    """Mark the per-block arrays' `blocks (n,) bool` as resting on nothing known (their
+    islands wake in the next simulation): a stage changed their neighbours."""
+    if arrays.get("sleep_loads") is not None:
+        arrays["sleep_loads"][blocks] = np.nan
+
+
+def touched_blocks(memory: ContactMemory, changed: np.ndarray) -> np.ndarray:
+    """The blocks `(n,) bool` with a contact in `memory` to one of the blocks `changed
+    (n,) bool`, and those blocks themselves."""
+    out = changed.copy()
+    i, j = memory.key[:, 0], memory.key[:, 2]
+    out[i[changed[j]]] = True
+    out[j[changed[i]]] = True
+    return out
+
+
+def _islands(system: BlockSystem, memory: ContactMemory) -> np.ndarray:
+    """Each block's island `(n,)`: free blocks joined by the contacts of `memory` (a fixed
+    block joins none)."""
+    i, j = memory.key[:, 0], memory.key[:, 2]
+    link = ~system.fixed[i] & ~system.fixed[j]
+    graph = coo_matrix((np.ones(int(link.sum())), (i[link], j[link])),
+                       shape=(system.n, system.n))
+    return connected_components(graph, directed=False)[1]
+
+
+def wake(system: BlockSystem, state: State, blocks: np.ndarray) -> None:
+    """Wake the islands of the blocks `blocks (n,) bool` (in place); counted as wakes."""
+    if state.asleep is None or not np.any(state.asleep & blocks):
+        return
+    if np.all(blocks):
+        woken = state.asleep.copy()
+    else:
+        label = _islands(system, state.memory)
+        woken = state.asleep & np.isin(label, label[blocks])
+    state.asleep = state.asleep & ~woken
+    state.quiet = np.where(woken, 0.0, state.quiet)
+    if state.drift is not None:
+        state.drift = np.where(woken[:, None], 0.0, state.drift)
+    state.diagnostics.wakes += int(woken.sum())
+
+
+def wake_all(system: BlockSystem, state: State) -> None:
+    """Wake every sleeping block (in place): a trial starts with every block awake."""
+    if state.asleep is not None:
+        wake(system, state, np.ones(system.n, dtype=bool))
+
+
+def reconcile(system: BlockSystem, state: State) -> None:
+    """Wake the islands whose sleep the model of `system` no longer supports (see the
+    module's docstring): a state carried to another model (a trial, a stage) keeps asleep
+    only what rests on the same strengths, loads and neighbours; every island wakes when
+    the body acceleration changed or the model cannot sleep at all."""
+    if state.asleep is None or not np.any(state.asleep):
+        return
+    if len(state.asleep) != system.n:
+        raise ValueError(f"the state has {len(state.asleep)} blocks, the model {system.n}")
+    if (not enabled(system) or state.sleep_body is None
+            or not np.array_equal(state.sleep_body, system.gravity)):
+        wake_all(system, state)
+        return
+    blocks = np.zeros(system.n, dtype=bool)
+    loads = state.sleep_loads
+    if loads is None or loads.shape != (system.n, 7):
+        blocks[:] = True
+    else:
+        blocks |= ~np.all(loads == basis_loads(system), axis=1)  # NaN: forgotten
+    joints = _joint_strengths(system)
+    old = state.sleep_joints
+    if old is None or old.shape != joints.shape:
+        blocks[:] = True
+    else:
+        weaker = np.flatnonzero(~np.all(old == joints, axis=1))
+        mem = state.memory
+        on = np.isin(mem.joint_material, weaker) | (mem.joint_material < 0)
+        blocks[mem.key[on, 0]] = True
+        blocks[mem.key[on, 2]] = True
+    wake(system, state, blocks & ~system.fixed)
+    if np.any(state.asleep):
+        record_basis(system, state)
 
 
 def check_wake(system: BlockSystem, state: State, res: StepResult) -> np.ndarray | None:
@@ -172,3 +292,5 @@ def update(system: BlockSystem, res: StepResult, after: State, dt: float,
     drift = np.zeros((n, 6)) if drift is None else drift
     drift[falling] = 0.0
     after.asleep, after.quiet, after.drift = asleep, quiet, drift
+    if np.any(falling):
+        record_basis(system, after)

@@ -36,6 +36,7 @@ from engine.loads import bolts as bolt_loads
 from engine.loads.seismic import GroundMotion, SeismicLoad
 from engine.loads.water import Water
 from engine.model import JointMaterial, Model
+from engine.step import sleep
 
 
 @dataclass(frozen=True)
@@ -205,24 +206,17 @@ def carry_state(full: Model, old: BlockSystem, state: State, old_keep: np.ndarra
                               np.flatnonzero(~kept_contact)) + bolt_gone
     new_index = np.full(len(old_keep), -1, np.int64)
     new_index[rows] = np.arange(len(rows))
-    key = mem.key[kept_contact].copy()
-    key[:, 0], key[:, 2] = new_index[key[:, 0]], new_index[key[:, 2]]
-    memory = ContactMemory(key=key, mode=mem.mode[kept_contact],
-                           shear=mem.shear[kept_contact], tangent=mem.tangent[kept_contact],
-                           broken=mem.broken[kept_contact], gap=mem.gap[kept_contact])
-    velocity = state.velocity[rows].copy()
-    velocity[now_fixed[rows]] = 0.0
-    last_d = None if state.last_d is None else state.last_d[rows].copy()
-    if last_d is not None:
-        last_d[now_fixed[rows]] = 0.0
+    memory = mem.rows(kept_contact).renumbered(new_index)
+    arrays = state.take_blocks(rows)
+    arrays["velocity"][now_fixed[rows]] = 0.0
+    if arrays["last_d"] is not None:
+        arrays["last_d"][now_fixed[rows]] = 0.0
+    # a removed neighbour or a newly fixed one changes what a sleeping block rests on
+    sleep.forget_basis(arrays, sleep.touched_blocks(mem, ~stay | now_fixed)[rows])
     energies = dict(state.energies)
     energies["removed_energy"] = energies.get("removed_energy", 0.0) + leaving
     new = dataclasses.replace(
-        state, centroid=state.centroid[rows].copy(), affine=state.affine[rows].copy(),
-        rotation=state.rotation[rows].copy(), velocity=velocity,
-        stress=state.stress[rows].copy(), last_d=last_d,
-        deepest=None if state.deepest is None else state.deepest[rows].copy(),
-        memory=memory, energies=energies, cache={},
+        state, **arrays, memory=memory, energies=energies, cache={},
         contact_energy=state.contact_energy - _contact_spring_energy(
             old, mem, np.flatnonzero(~kept_contact)),
         **_bolt_arrays(state, bolt_rows))

@@ -285,7 +285,7 @@ def _energy_norm(kmat: np.ndarray, x: np.ndarray, y: np.ndarray) -> float:
 
 
 @njit(cache=True)
-def _moved(x: np.ndarray, y: np.ndarray, radius: np.ndarray) -> float:
+def moved(x: np.ndarray, y: np.ndarray, radius: np.ndarray) -> float:
     """The largest displacement of any block point between `x` and `y` (a bound)."""
     out = 0.0
     for b in range(x.shape[0]):
@@ -354,7 +354,7 @@ def nsgs(order: np.ndarray, pptr: np.ndarray, bi: np.ndarray, bj: np.ndarray,
         rate = eta / previous if (sweep > 1 and previous > 0.0) else 0.0
         est = eta / max(1.0 - min(rate, 0.999), 1e-3) if rate < 1.0 else 1e3 * eta
         # one sweep tells no contraction rate: it converges alone only by moving nothing
-        if (est < tol and sweep > 1) or _moved(x, start, radius) <= floor:
+        if (est < tol and sweep > 1) or moved(x, start, radius) <= floor:
             return sweep, est
     return -max_sweeps, est
 

@@ -292,7 +292,8 @@ def initial_modes(bi: np.ndarray, bj: np.ndarray, point_i: np.ndarray,
                   centroid: np.ndarray, velocity: np.ndarray, row: np.ndarray,
                   mem_mode: np.ndarray, mem_shear: np.ndarray, mem_tangent: np.ndarray,
                   mem_broken: np.ndarray, tan_phi: np.ndarray, bonded_joint: np.ndarray,
-                  first_step: bool, touch_gap: float, dt: float, kn: float, ks: float
+                  first_step: bool, touch_gap: float, bond_gap: float, dt: float, kn: float,
+                  ks: float
                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Modes, accumulated shear, tangents and broken bonds `(mode (c,), shear (c, 3),
     tangent (c, 3), broken (c,))` at the start of a step.
@@ -303,7 +304,8 @@ def initial_modes(bi: np.ndarray, bj: np.ndarray, point_i: np.ndarray,
     of its relative tangential velocity over Δt would beat friction, else locked, sliding
     along that velocity. On the first step, touching contacts of joints with cohesion or
     tensile strength (`bonded_joint`) are bonded and locked; contacts that form later are
-    born broken (friction only)."""
+    born broken (friction only), as are those found at the start farther apart than
+    `bond_gap`."""
     c = len(gap)
     mode = np.zeros(c, dtype=np.int8)
     shear = np.zeros((c, 3))
@@ -316,7 +318,7 @@ def initial_modes(bi: np.ndarray, bj: np.ndarray, point_i: np.ndarray,
         r = row[k]
         if r >= 0:
             broken[k] = mem_broken[r]
-        elif not first_step:
+        elif not first_step or gap[k] > bond_gap:
             broken[k] = True
         if first_step and bonded_joint[k] and gap[k] <= touch_gap:
             mode[k] = LOCKED

@@ -38,7 +38,13 @@ import numpy as np
 
 import engine.contact.solvers._complementarity_kernels as kern
 from engine.contact.constraints import LOCKED, OPEN, SLIDING, ContactSet
-from engine.contact.patches import patch_ids, sweep_order
+from engine.contact.patches import (
+    ContactPatches,
+    bond_breaks,
+    bonded_at_start,
+    patch_ids,
+    sweep_order,
+)
 from engine.contact.solution import StepResult
 from engine.contact.solvers.active_set import Primal, active_set_step
 from engine.dynamics.block_terms import block_dissipation, block_terms, bolt_links
@@ -47,6 +53,9 @@ from engine.dynamics.system import BlockSystem
 from engine.geometry.transforms import displacement_matrices
 from engine.status import StepFailure
 
+#: a bonded patch breaks when a point moves by more than this many times the resolution of
+#: the sweeps (`contact_tolerance` × the motion the contacts cause)
+BOND_RESOLUTION = 10.0
 #: fraction of an earlier penetration pushed out in one step (the rest stays; a penetration
 #: is never made deeper)
 DEPENETRATION = 0.2
@@ -177,22 +186,6 @@ def _warm_start(state: State, contacts: ContactSet, frames: np.ndarray) -> np.nd
     return r
 
 
-def _bonds(system: BlockSystem, state: State, contacts: ContactSet
-           ) -> tuple[np.ndarray, np.ndarray]:
-    """Which contacts' joints have cohesion or tensile strength `(c,)`, and which of them
-    start the step bonded `(c,)`: they touched at the start of the run or kept their bond
-    since (a contact that forms later has friction only)."""
-    jm = contacts.joint_material
-    strong = (system.cohesion[jm] > 0) | (system.tension[jm] > 0)
-    if state.step == 0:
-        return strong, strong & (contacts.gap <= system.touch_gap)
-    row = state.memory.find(contacts.key)
-    kept = np.zeros(len(contacts), dtype=bool)
-    again = row >= 0
-    kept[again] = ~state.memory.broken[row[again]]
-    return strong, strong & kept
-
-
 @dataclass
 class _Law:
     """Each contact's law: the lower bound `bn` of its normal motion (m, or m/s), its
@@ -282,7 +275,7 @@ def _law(system: BlockSystem, state: State, contacts: ContactSet, areas: np.ndar
     # pushing it out leaves the velocity stage a separating velocity from nowhere (at Δt
     # 0.1 ms a stack of ten cubes gained energy from it step after step)
     gmin = np.where(g0 < -system.touch_gap, g0 * (1.0 - DEPENETRATION), np.minimum(0.0, g0))
-    strong, bonded = _bonds(system, state, contacts)
+    strong, bonded = bonded_at_start(system, state, contacts)
     law = _Law(bn=gmin - g0, mu=system.tan_phi[jm].astype(float),
                tension=np.where(bonded, system.tension[jm] * areas, 0.0),
                cohesion=np.where(bonded, system.cohesion[jm] * areas, 0.0))
@@ -330,7 +323,11 @@ def _position_stage(system: BlockSystem, state: State, contacts: ContactSet,
         _add_links(links, pb.f, x)
         sweeps += _solve(pb, r, x, "position")
         u = kern.relative_motion(fr.bi, fr.bj, fr.hi, fr.hj, x)
-        breaking = _moving_bonds(u, law, patch, 10.0 * floor)
+        # a bond moves when its points move by more than the solve resolves: the sweeps
+        # stop at `tol` of the motion the contacts cause (at Δt 10 ms that is ~1e-9 m, and
+        # a bond judged on 1e-10 m broke at 4 % below its limit-equilibrium strength)
+        resolved = BOND_RESOLUTION * pb.tol * kern.moved(x, xfree, fr.radius)
+        breaking = _moving_bonds(u, law, patch, max(10.0 * floor, resolved))
         if not np.any(breaking):
             break
         broken |= breaking
@@ -408,8 +405,8 @@ def _modes(law: _Law, r: np.ndarray, u: np.ndarray, gap1: np.ndarray,
 
 
 def complementarity_step(system: BlockSystem, state: State, contacts: ContactSet,
-                         areas: np.ndarray, dt: float) -> StepResult:
-    """The step of `dt` s from `state` with its `contacts` (patch areas `areas (c,)` m²)
+                         patches: ContactPatches, dt: float) -> StepResult:
+    """The step of `dt` s from `state` with its `contacts` (and their bonded `patches`)
     solved as one frictional contact problem (module docstring); StepFailure when a stage
     does not converge."""
     diag = state.diagnostics
@@ -419,7 +416,8 @@ def complementarity_step(system: BlockSystem, state: State, contacts: ContactSet
                 np.ascontiguousarray(kb[state.awake(system.fixed)]), mass)
     clock = diag.tick("assembly", clock)
     x, r, broken, law, sweeps1, gap1, u, residual = _position_stage(
-        system, state, contacts, areas, fr, kb, fb)
+        system, state, contacts, patches.share, fr, kb, fb)
+    strong, bonded = bonded_at_start(system, state, contacts)
     clock = diag.tick("solve", clock)
     v, sweeps2 = _velocity_stage(system, state, contacts, fr, law, x, r, u, dt)
     clock = diag.tick("open_close", clock)
@@ -448,4 +446,5 @@ def complementarity_step(system: BlockSystem, state: State, contacts: ContactSet
         normal_force=r[:, 0].copy(), shear_force=force - r[:, :1] * contacts.normal,
         friction_work=friction, iterations=sweeps1 + sweeps2,
         numerical_dissipation=normal + kinetic + block_dissipation(system, state, d),
-        broken=broken, velocity=v1, force=force, contact_energy=0.0, residual=residual)
+        broken=broken, velocity=v1, force=force, contact_energy=0.0, residual=residual,
+        bond_breaks=bond_breaks(patches, strong & ~bonded, broken))

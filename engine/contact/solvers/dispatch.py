@@ -21,7 +21,7 @@ def solve_contacts(system: BlockSystem, state: State, contacts: ContactSet,
     """The converged step of `dt` s from `state` with its `contacts` (and their bonded
     `patches`); StepFailure when it does not converge."""
     if system.controls.contact_solver == "complementarity":
-        return complementarity_step(system, state, contacts, patches.share, dt)
+        return complementarity_step(system, state, contacts, patches, dt)
     start = initial_modes(system, state, contacts, dt)
     return open_close_iteration(system, state, contacts, patches, start, dt)
 

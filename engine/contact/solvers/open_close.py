@@ -91,7 +91,7 @@ def initial_modes(system: BlockSystem, state: State, contacts: ContactSet,
         contacts.normal, contacts.gap, state.centroid, state.velocity,
         mem.find(contacts.key), mem.mode, mem.shear, mem.tangent, mem.broken,
         system.tan_phi[jm], (system.cohesion[jm] > 0) | (system.tension[jm] > 0),
-        state.step == 0, system.touch_gap, dt, system.kn, system.ks))
+        state.step == 0, system.touch_gap, system.bond_gap, dt, system.kn, system.ks))
 
 
 @dataclass
