@@ -104,12 +104,15 @@ class AnalysisControls:
     fixed_point_penalty: float | None = None
     record_contacts: bool = True
     #: how each step's contacts are solved: "open_close", the paper's open-close iteration
-    #: on penalty springs (:mod:`engine.contact.solvers.open_close`), or "complementarity", one
-    #: solve of the frictional contact problem without springs
+    #: on penalty springs (:mod:`engine.contact.solvers.open_close`); "newton", the same
+    #: springs' step potential minimised by Newton's method
+    #: (:mod:`engine.contact.solvers.newton`); or "complementarity", one solve of the
+    #: frictional contact problem without springs
     #: (:mod:`engine.contact.solvers.complementarity`)
-    contact_solver: Literal["open_close", "complementarity"] = "open_close"
+    contact_solver: Literal["open_close", "complementarity", "newton"] = "open_close"
     #: the complementarity solve's convergence: the change of the blocks' motion in a sweep
-    #: relative to the motion the contacts cause (energy norm)
+    #: relative to the motion the contacts cause (energy norm); Newton's: every block's
+    #: out-of-balance force relative to the median block's weight
     contact_tolerance: float = 1e-6
     #: restitution of an impact (the complementarity solve's impact law): the parting
     #: normal velocity is `e` times the approach velocity; 0 is a plastic impact

@@ -600,16 +600,19 @@ class AnalysisSpec(_Model):
                     "in compression and in locked shear): impacts and rocking settle "
                     "instead of ringing on the penalty springs; 0 turns them off")
     record_contacts: bool = _CONTROLS.record_contacts
-    contact_solver: Literal["open_close", "complementarity"] = Field(
+    contact_solver: Literal["open_close", "complementarity", "newton"] = Field(
         _CONTROLS.contact_solver,
         description="how each step's contacts are solved: 'open_close' (the paper's "
-                    "open-close iteration on penalty springs) or 'complementarity' (one "
-                    "solve of the frictional contact problem, no springs: no penalty to "
-                    "choose, and Δt is held where springs would cut it)")
+                    "open-close iteration on penalty springs), 'newton' (the same springs, "
+                    "the step as the minimum of its potential by Newton's method: no mode "
+                    "guessing, Δt held where open-close cuts it) or 'complementarity' (one "
+                    "solve of the frictional contact problem, no springs)")
     contact_tolerance: Annotated[float, Field(gt=0, le=1e-2)] = Field(
         _CONTROLS.contact_tolerance,
         description="complementarity solve: change of the blocks' motion in a sweep, "
-                    "relative to the motion the contacts cause, at which it has converged")
+                    "relative to the motion the contacts cause, at which it has converged; "
+                    "newton: every block's out-of-balance force, relative to the median "
+                    "block's weight")
     restitution: Annotated[float, Field(ge=0, le=1)] = Field(
         _CONTROLS.restitution,
         description="complementarity solve: parting / approach normal velocity of an "

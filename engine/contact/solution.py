@@ -50,3 +50,6 @@ class StepResult:
     #: the complementarity solve's residual: the contact law's largest violation at the end
     #: of its position stage (m; None: the open-close iteration)
     residual: float | None = None
+    #: conjugate-gradient iterations of the step's linear solves (the Newton solve's; 0 where
+    #: they were direct or not counted)
+    linear_iterations: int = 0

@@ -132,7 +132,18 @@ class SystemPlan:
         for small systems, else BSR. Also sets :attr:`components`."""
         kn = np.ascontiguousarray(kn, dtype=np.float64)
         ks = np.ascontiguousarray(ks, dtype=np.float64)
-        data = self._data(kn, ks)
+        return self._wrap(self._data(kn, ks), kn, ks)
+
+    def wrap(self, data: np.ndarray, weight: np.ndarray) -> tuple[sp.bsr_matrix | np.ndarray,
+                                                                  np.ndarray]:
+        """K of BSR values `data (nnz, d, d)` on this plan's pattern (filled by the caller,
+        e.g. a Hessian with a 3 × 3 block per contact) and its diagonal blocks; `weight
+        (c,)` is nonzero where a contact couples its blocks (for :attr:`components`)."""
+        w = np.ascontiguousarray(weight, dtype=np.float64)
+        return self._wrap(data, w, np.zeros_like(w))
+
+    def _wrap(self, data: np.ndarray, kn: np.ndarray, ks: np.ndarray
+              ) -> tuple[sp.bsr_matrix | np.ndarray, np.ndarray]:
         self.components = coupled_components(self.m, self.slot_ij, self.fi, self.fj, kn, ks)
         dblk = data[self.diag_slot]
         if self.dense:

@@ -110,6 +110,7 @@ class BlockJacobi:
 def make_solver(
     k: sp.spmatrix, block: int = 6, diag_blocks: np.ndarray | None = None,
     jacobi: BlockJacobi | None = None, components: np.ndarray | None = None,
+    rtol: float = CG_RTOL,
 ) -> Callable[[np.ndarray, np.ndarray | None], np.ndarray]:
     """A function `solve(F, x0) -> D` for this K, factorized or CG by size.
 
@@ -119,7 +120,8 @@ def make_solver(
     `jacobi` keeps the preconditioner of the previous K to update it; `components (n /
     block,)`, when given, are the coupled components of the block rows
     (:func:`engine.dynamics._assembly_kernels.coupled_components`): the small ones are factorized
-    (:func:`split_components`), CG iterates on the others.
+    (:func:`split_components`), CG iterates on the others, to the relative residual `rtol`
+    (its last solve's iterations are the returned function's `iterations`).
     """
     n = k.shape[0]
     if n == 0:
@@ -155,9 +157,10 @@ def make_solver(
         raise SolveError("the system matrix is not positive definite (a coupled component)")
 
     def cg(f: np.ndarray, x0: np.ndarray | None = None) -> np.ndarray:
-        x, iters = pcg(kc, f, pre, x0, CG_RTOL, 10 * n, rows)
+        x, iters = pcg(kc, f, pre, x0, rtol, 10 * n, rows)
         if iters < 0:
             raise SolveError(f"conjugate gradients did not converge in {10 * n} iterations")
+        cg.iterations = iters  # type: ignore[attr-defined]
         solve_components(factors, offsets, ptr, small, block, f, x)
         if not np.all(np.isfinite(x)):
             raise SolveError("the solve produced non-finite values")
