@@ -33,7 +33,7 @@ from tests.planar_scenes import (
 )
 
 #: every contact solver of analysis.contact_solver
-SOLVERS = ("open_close", "complementarity")
+SOLVERS = ("open_close", "complementarity", "newton")
 FOS = StrengthReductionControls(observation_time=1.0, tolerance=0.005)
 
 

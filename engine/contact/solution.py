@@ -47,6 +47,9 @@ class StepResult:
     force: np.ndarray | None = None
     #: energy (J) the contacts store at the step's end (None: the penalty springs')
     contact_energy: float | None = None
+    #: whether the contacts are springs that store energy (False: hard contacts); the
+    #: springs of sleeping blocks keep theirs (engine.step.advance)
+    springs: bool = True
     #: the complementarity solve's residual: the contact law's largest violation at the end
     #: of its position stage (m; None: the open-close iteration)
     residual: float | None = None

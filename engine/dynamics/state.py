@@ -71,6 +71,14 @@ class ContactMemory:
         """The memory of the contacts `index` (boolean mask or rows), every field kept."""
         return ContactMemory(**{name: getattr(self, name)[index] for name in MEMORY_FIELDS})
 
+    def spring_energy(self, kn: float, ks: float, rows: np.ndarray) -> float:
+        """Energy (J) the springs of the contacts `rows` held at the last step's end: the
+        normal spring `kn` of the closed ones (the memory also keeps open contacts pressed
+        in, whose springs hold nothing) and the shear springs `ks`."""
+        closed = self.mode[rows] != 0  # (engine.contact.constraints.OPEN)
+        return (0.5 * kn * float(np.sum(self.gap[rows][closed] ** 2))
+                + 0.5 * ks * float(np.sum(self.shear[rows] ** 2)))
+
     def renumbered(self, new_index: np.ndarray) -> ContactMemory:
         """The memory with its blocks renumbered by `new_index (n_old,)` (a stage's kept
         blocks; every contact's blocks must be kept)."""
@@ -128,6 +136,9 @@ class Diagnostics:
 
     #: blocks woken from sleep, and steps redone to wake them (engine.step.sleep)
     wakes: int = 0
+    #: Newton solves whose friction caps kept the normal forces of the step's own first
+    #: solve (a lag of one round: the semi-smooth polish did not converge)
+    lagged_caps: int = 0
 
     def tick(self, phase: str, since: float) -> float:
         """Add the wall time since `since` (perf_counter) to `phase`; return now."""
@@ -196,6 +207,15 @@ class State:
     def awake(self, fixed: np.ndarray) -> np.ndarray:
         """The blocks that move in the next step `(n,)`: free and not asleep."""
         return ~fixed if self.asleep is None else ~fixed & ~self.asleep
+
+    def resting_contacts(self, fixed: np.ndarray) -> np.ndarray:
+        """The memory's contacts between blocks that do not move in the next step (asleep
+        or fixed) `(m,) bool`: they keep what they held."""
+        mem = self.memory
+        if self.asleep is None or not np.any(self.asleep):
+            return np.zeros(len(mem.key), dtype=bool)
+        awake = self.awake(fixed)
+        return ~awake[mem.key[:, 0]] & ~awake[mem.key[:, 2]]
 
     def take_blocks(self, rows: np.ndarray) -> dict[str, np.ndarray | None]:
         """Every per-block array cut to the blocks `rows` (copies; None stays None): what a

@@ -51,11 +51,13 @@ def _work(system: BlockSystem, state: State, res: StepResult, dt: float) -> dict
     return e
 
 
-def _memory(system: BlockSystem, state: State, res: StepResult) -> ContactMemory:
+def _memory(system: BlockSystem, state: State, res: StepResult, still: np.ndarray
+            ) -> ContactMemory:
     """What the step's contacts carry to the next step: closed contacts, broken ones (stay
     broken) and open ones pressed in within the open-close hysteresis (their springs start
     the next step unstretched, see :func:`engine.contact.search.plausible_gaps`); and, kept
-    as they were, the contacts between blocks that did not move (asleep or fixed)."""
+    as they were, the contacts between blocks that did not move (`still`, asleep or
+    fixed)."""
     cs = res.contacts
     broken = res.broken if res.broken is not None else np.zeros(len(cs), dtype=bool)
     keep = (cs.mode != OPEN) | broken | (res.gap1 < 0)
@@ -73,9 +75,8 @@ def _memory(system: BlockSystem, state: State, res: StepResult) -> ContactMemory
                         joint_material=cs.joint_material[keep])
     if state.asleep is None or not np.any(state.asleep):
         return new
-    mem, awake = state.memory, state.awake(system.fixed)
-    still = ~awake[mem.key[:, 0]] & ~awake[mem.key[:, 2]]
-    return ContactMemory(**{name: np.concatenate([getattr(new, name), getattr(mem, name)[still]])
+    return ContactMemory(**{name: np.concatenate([getattr(new, name),
+                                                  getattr(state.memory, name)[still]])
                             for name in MEMORY_FIELDS})
 
 
@@ -133,13 +134,15 @@ def advance(system: BlockSystem, state: State, res: StepResult, dt: float) -> St
     if system.elastic:
         stress = stress + np.einsum("nij,nj->ni", system.emat, d[:, 6:])
     deepest, diagnostics = _penetrations(system, state, res)
+    still = state.resting_contacts(system.fixed)
+    stored = spring_energy(system, res) if res.contact_energy is None else res.contact_energy
+    if res.springs and np.any(still):  # sleeping contacts keep what their springs hold
+        stored += state.memory.spring_energy(system.kn, system.ks, still)
     after = State(
         centroid=centroid, affine=affine, rotation=rotation, velocity=v1, stress=stress,
         time=state.time + dt, step=state.step + 1, dt=state.dt, last_dt=state.last_dt,
-        memory=_memory(system, state, res), last_d=d, deepest=deepest,
-        energies=_work(system, state, res, dt),
-        contact_energy=spring_energy(system, res) if res.contact_energy is None
-        else res.contact_energy,
+        memory=_memory(system, state, res, still), last_d=d, deepest=deepest,
+        energies=_work(system, state, res, dt), contact_energy=stored,
         diagnostics=diagnostics, asleep=state.asleep, quiet=state.quiet, drift=state.drift)
     if system.bolts is not None:
         _advance_bolts(system, state, after, d)

@@ -27,10 +27,9 @@ from typing import Any
 
 import numpy as np
 
-from engine.contact.constraints import OPEN
 from engine.dynamics.block_terms import kinetic_energy
 from engine.dynamics.motion import mass_matrices, mass_properties
-from engine.dynamics.state import ContactMemory, State
+from engine.dynamics.state import State
 from engine.dynamics.system import BlockSystem, default_penalty
 from engine.loads import bolts as bolt_loads
 from engine.loads.seismic import GroundMotion, SeismicLoad
@@ -119,16 +118,6 @@ def stage_model(full: Model, stage: Stage, ledger: Ledger) -> tuple[Model, np.nd
     return model, keep
 
 
-def _contact_spring_energy(system: BlockSystem, memory: ContactMemory,
-                           rows: np.ndarray) -> float:
-    """Energy (J) the contacts `rows` of the memory held at the last step's end, as
-    :func:`engine.step.advance.spring_energy` counts it (the normal spring of the closed
-    ones; the memory also keeps open contacts pressed in, whose springs hold nothing)."""
-    closed = memory.mode[rows] != OPEN
-    return (0.5 * system.kn * float(np.sum(memory.gap[rows][closed] ** 2))
-            + 0.5 * system.ks * float(np.sum(memory.shear[rows] ** 2)))
-
-
 def _leaving_energy(system: BlockSystem, state: State, gone: np.ndarray,
                     stopped: np.ndarray, lost_rows: np.ndarray) -> float:
     """Energy (J) that leaves the model with the blocks `gone` (bool over the old system's
@@ -145,7 +134,7 @@ def _leaving_energy(system: BlockSystem, state: State, gone: np.ndarray,
         if gone[b]:
             r = (state.centroid[b] + state.affine[b] @ (p0 - system.c0[b])) - p0
             out += 0.5 * system.kf * float(r @ r)
-    return out + _contact_spring_energy(system, state.memory, lost_rows)
+    return out + state.memory.spring_energy(system.kn, system.ks, lost_rows)
 
 
 def _bolt_rows(system: BlockSystem, state: State, names: list[str]
@@ -217,8 +206,8 @@ def carry_state(full: Model, old: BlockSystem, state: State, old_keep: np.ndarra
     energies["removed_energy"] = energies.get("removed_energy", 0.0) + leaving
     new = dataclasses.replace(
         state, **arrays, memory=memory, energies=energies, cache={},
-        contact_energy=state.contact_energy - _contact_spring_energy(
-            old, mem, np.flatnonzero(~kept_contact)),
+        contact_energy=state.contact_energy - mem.spring_energy(
+            old.kn, old.ks, np.flatnonzero(~kept_contact)),
         **_bolt_arrays(state, bolt_rows))
     ledger.blocks, ledger.bolts = keep.tolist(), names
     for name in [n for n in ledger.installed if n not in names]:

@@ -446,5 +446,6 @@ def complementarity_step(system: BlockSystem, state: State, contacts: ContactSet
         normal_force=r[:, 0].copy(), shear_force=force - r[:, :1] * contacts.normal,
         friction_work=friction, iterations=sweeps1 + sweeps2,
         numerical_dissipation=normal + kinetic + block_dissipation(system, state, d),
-        broken=broken, velocity=v1, force=force, contact_energy=0.0, residual=residual,
+        broken=broken, velocity=v1, force=force, contact_energy=0.0, springs=False,
+        residual=residual,
         bond_breaks=bond_breaks(patches, strong & ~bonded, broken))

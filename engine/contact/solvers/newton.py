@@ -1,38 +1,37 @@
 """The step as one minimisation (`analysis.contact_solver: "newton"`): Shi's DDA derives a
-step from the minimum of its total potential energy; here the step's equations are solved
-by Newton's method instead of the open-close iteration (../shared/STEP-AS-POTENTIAL.md).
+step from the minimum of its total potential energy; here that minimum is found by Newton's
+method instead of the open-close iteration (../shared/STEP-AS-POTENTIAL.md).
 
-With the caps of friction held, the step's block displacements x minimise
+The step's block displacements x minimise
 
     E(x) = ½ xᵀ K_b x − fᵀ x                  (inertia, elasticity, loads: Shi's block terms)
          + Σ ½ kn ⟨−g(x)⟩² + ½ c' ⟨a − g(x)⟩²  (normal spring on a closing gap; its dashpot)
          + Σ ψ(w(x))                           (DDA's anchored shear spring capped at μN + cA)
          + Σ ½ drᵀ P dr                        (bolts between two free blocks)
 
-with the terms of :mod:`._newton_kernels`: every term convex, K_b positive definite, one
-minimum. The modes (open, locked, sliding) are read off the solution instead of guessed.
-Coulomb's cap μN follows the contact's own normal force N, which makes the step's
-equations no longer the gradient of one potential; they are solved by semi-smooth Newton
-with the cap's dependence on N in the Jacobian (K_b + Σ Jᵀ D J, D a 3 × 3 block per contact,
-not symmetric where a contact slides), a backtracking line search on the squared
-out-of-balance forces, and, where that does not descend, a step of E with the caps held
-(its Hessian by the engine's Cholesky or block-Jacobi CG, an exact line search: the slope of
-E along a direction is a sum over contacts). The Jacobian is assembled on the engine's
-block-sparse pattern (:mod:`engine.dynamics.assembly`) and solved by LU when small and
-block-Jacobi BiCGSTAB (warm, to a relative tolerance that tightens as Newton converges)
-when large. Lagging N over whole Newton solves instead (IPC's friction) converged at a
-rate of ~0.5 per solve on collapsing rock masses: 40-60 Newton iterations a step and Δt
-cuts, against 10-20 with N in the Jacobian and none (docs/contact-solvers.md).
+with the terms of :mod:`._newton_kernels`: every term convex, K_b positive definite, so E
+has one minimum and Newton's method with an exact line search (the slope of E along a
+direction is a sum over contacts) reaches it from anywhere. The modes (open, locked,
+sliding) are read off the minimum instead of guessed and corrected. The Hessian K_b +
+Σ Jᵀ D J (D a 3 × 3 block per contact) is assembled on the engine's block-sparse pattern
+(:mod:`engine.dynamics.assembly`) and solved by its Cholesky when small and block-Jacobi
+conjugate gradients (warm, to a relative tolerance that tightens as Newton converges) when
+large. Newton stops on the force residual: every block's out-of-balance force, and moment
+and strain forces over its radius, below `contact_tolerance` × the median block weight.
 
-Each contact's gap carries the second-order correction of the blocks' exact rotation over
-the step, updated at every iterate (Gauss–Newton: columns turning against each other
-otherwise overlap by ~θ² r a step and lose that energy as a plastic impact the next). Bonds
-are held during a solve and updated between solves: a bonded patch holds its shear as one,
-uncapped, until its total shear exceeds Σ μN + Σ cA, and a bonded contact holds tension up
-to its share σt·A; a break is solved again. Newton stops on the force residual: every
-block's out-of-balance force, and moment and strain forces over its radius, below
-`contact_tolerance` × the median block weight. The energy ledger is taken from the same
-terms (:func:`._newton_kernels.step_ends`): what the springs store, the friction's and the
+The cap's normal force N is lagged, so that the step stays one convex problem: a contact
+found again takes the normal force it ended the last step with (exact wherever N does not
+change over a step: a block sliding, a wedge, a body at rest); a new contact takes the
+force its block pair's lost contacts carried, then the first round's (a lag of one round,
+as a contact found again has one of a step). (Measured on the collapsing 134-block mass:
+every contact's N iterated to a fixed point, 40-50 Newton iterations a step; lagged, 15;
+semi-smooth Newton with the cap following N in the Jacobian, 12, but it stalls at 854
+blocks: docs/contact-solvers.md.) Bonds are updated between rounds too: a bonded patch
+holds its shear as one, uncapped, until its total shear exceeds Σ μN + Σ cA, and a bonded
+contact holds tension up to its share σt·A; a break is solved again. Each contact's gap
+carries the second-order correction of the blocks' exact rotation over the step, updated
+at every iterate (Gauss–Newton). The energy ledger is taken from the same terms
+(:func:`._newton_kernels.step_ends`): what the springs store, the friction's and the
 dashpots' work, and the springs' numerical dissipation (the Bregman divergence of their
 energy over the step: ½ k Δ² of DDA's implicit springs), so the energy watchdog judges what
 was solved. Rings and rebounds are damped after the step (:mod:`.damping`), as for the
@@ -76,10 +75,11 @@ LINE_EVALUATIONS = 40
 #: the force residual falls: inexact Newton, Eisenstat–Walker)
 KRYLOV_RTOL_MAX = 0.1
 KRYLOV_RTOL_MIN = 1e-10
-#: a semi-smooth Newton step cut below this fraction is poor: a step of the potential is
-#: taken instead, and after POOR_STEPS of them only those (they always descend)
+#: semi-smooth Newton steps (the caps following N) of a round, at most; a step cut below
+#: MIN_STEP ends them (a cap's kink between x and the solution) and the round is solved
+#: with its caps lagged
+SEMI_SMOOTH_STEPS = 30
 MIN_STEP = 0.2
-POOR_STEPS = 2
 
 
 @dataclass
@@ -118,9 +118,9 @@ class _Step:
 
 @dataclass
 class _Round:
-    """What an outer round holds: each contact's lagged normal force `nlag` (N), its gap's
-    rotation correction `delta` (m), whether its bond is `broken`, and whether its shear
-    spring has no cap (`stick`: its bonded patch holds)."""
+    """What a round holds: each contact's normal force `nlag` (N) for the cap of its
+    friction, its gap's rotation correction `delta` (m), whether its bond is `broken`, and
+    whether its shear spring has no cap (`stick`: its bonded patch holds)."""
 
     nlag: np.ndarray
     delta: np.ndarray
@@ -198,15 +198,48 @@ def _first_round(system: BlockSystem, state: State, contacts: ContactSet, st: _S
     from its start gap), no rotation correction, its bond as it starts the step."""
     mem = state.memory
     rows = mem.find(contacts.key)
-    nlag = st.kn * np.maximum(-st.d0, 0.0)
+    nlag = system.kn * np.maximum(-st.d0, 0.0)
     again = rows >= 0
+    old = np.maximum(np.einsum("ij,ij->i", mem.force, _memory_normals(mem, contacts, rows)), 0.0)
     if np.any(again):
-        nlag[again] = np.maximum(np.einsum("ij,ij->i", mem.force[rows[again]],
-                                           contacts.normal[again]), nlag[again])
+        nlag[again] = old[rows[again]]
+    _share_pairs(system, mem, contacts, rows, old, nlag)
     strong, bonded = bonded_at_start(system, state, contacts)
     broken = strong & ~bonded
     stick = (st.patch >= 0) & ~broken & (st.cohesion > 0)
     return _Round(nlag, np.zeros(len(contacts)), broken, stick)
+
+
+def _memory_normals(mem: object, contacts: ContactSet, rows: np.ndarray) -> np.ndarray:
+    """Each memory contact's normal `(m, 3)`: the step's normal of the contact found again
+    as it (the memory keeps forces, not normals), else its force's direction."""
+    f = mem.force
+    length = np.linalg.norm(f, axis=1)
+    out = np.where((length > 0)[:, None], f / np.maximum(length, 1e-300)[:, None], 0.0)
+    again = rows >= 0
+    out[rows[again]] = contacts.normal[again]
+    return out
+
+
+def _share_pairs(system: BlockSystem, mem: object, contacts: ContactSet, rows: np.ndarray,
+                 old: np.ndarray, nlag: np.ndarray) -> None:
+    """A new contact of a block pair the last step had takes an equal share of what the
+    pair's contacts that were not found again carried (the pair's force, re-detected on
+    other features), in place: a first guess its rounds then correct."""
+    n = system.n
+    gone = np.ones(len(mem.key), dtype=bool)
+    gone[rows[rows >= 0]] = False
+    pair_old = mem.key[:, 0] * n + mem.key[:, 2]
+    fresh = rows < 0
+    pair_new = contacts.block_i * n + contacts.block_j
+    if not (np.any(gone) and np.any(fresh)):
+        return
+    keys, inv = np.unique(np.concatenate([pair_old[gone], pair_new[fresh]]),
+                          return_inverse=True)
+    carried = np.bincount(inv[:int(gone.sum())], weights=old[gone], minlength=len(keys))
+    count = np.bincount(inv[int(gone.sum()):], minlength=len(keys))
+    share = carried[inv[int(gone.sum()):]] / np.maximum(count[inv[int(gone.sum()):]], 1)
+    nlag[fresh] = np.maximum(nlag[fresh], share)
 
 
 def _links_terms(st: _Step, x: np.ndarray) -> tuple[np.ndarray, float]:
@@ -217,12 +250,12 @@ def _links_terms(st: _Step, x: np.ndarray) -> tuple[np.ndarray, float]:
     return f, -0.5 * float(np.sum(f * dr))
 
 
-def _gradient(st: _Step, rnd: _Round, x: np.ndarray, want_jac: bool, coupled: bool = True
+def _gradient(st: _Step, rnd: _Round, x: np.ndarray, want_jac: bool, coupled: bool = False
               ) -> tuple[float, np.ndarray, np.ndarray, np.ndarray]:
-    """E(x) with the round's caps, its gradient `(m, d)` (the step's out-of-balance forces,
-    negated), the contacts' 3 × 3 Jacobian blocks `(c, 3, 3)` (with the caps' dependence
-    on the normal force when `coupled`, else the energy's Hessian) and their relative
-    displacements `(c, 3)`."""
+    """E(x), its gradient `(m, d)` (the step's out-of-balance forces, negated), the
+    contacts' 3 × 3 blocks `(c, 3, 3)` of the energy's Hessian (with the caps held), or of
+    the forces' Jacobian with each cap following its contact's normal force (`coupled`: not
+    symmetric where a contact slides), and their relative displacements `(c, 3)`."""
     base, cap, tension = rnd.law(st)
     dr = kern.relative_motion(x, st.row, st.bi, st.bj, st.ti, st.tj)
     force, jac, energy = kern.contact_terms(dr, st.normal, base, st.a, st.cprime, st.shear0,
@@ -239,17 +272,21 @@ def _gradient(st: _Step, rnd: _Round, x: np.ndarray, want_jac: bool, coupled: bo
     return energy, -total, jac, dr
 
 
-def _live(st: _Step, rnd: _Round, x: np.ndarray) -> None:
-    """Set the round's gap corrections for the blocks' exact rotation, and its normal forces
-    (the friction caps' N), to those at `x`, in place (their dependence on x is left out of
-    the Jacobian for the rotation, which is second order, and kept for the caps)."""
+def _rotation(st: _Step, rnd: _Round, x: np.ndarray) -> None:
+    """Set the round's gap corrections for the blocks' exact rotation to those of the
+    step `x`, in place (second order: left out of the Hessian, Gauss–Newton)."""
     dr = kern.relative_motion(x, st.row, st.bi, st.bj, st.ti, st.tj)
     rnd.delta = kern.rotation_correction(x, st.row, st.bi, st.bj, st.point_i, st.point_j,
                                          st.centroid, st.normal, dr)
+
+
+def _normal_forces(st: _Step, rnd: _Round, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The contacts' forces on block i `(c, 3)` N and normal forces `(c,)` N at `x`."""
     base, cap, tension = rnd.law(st)
+    dr = kern.relative_motion(x, st.row, st.bi, st.bj, st.ti, st.tj)
     force, _, _ = kern.contact_terms(dr, st.normal, base, st.a, st.cprime, st.shear0, cap,
-                                     st.kn, st.ks, tension, rnd.stick, False, st.mu)
-    rnd.nlag = np.maximum(np.einsum("ij,ij->i", force, st.normal), 0.0)
+                                     st.kn, st.ks, tension, rnd.stick, False, np.zeros(0))
+    return force, np.einsum("ij,ij->i", force, st.normal)
 
 
 def _scaled(st: _Step, grad: np.ndarray) -> np.ndarray:
@@ -274,18 +311,20 @@ def _residual(st: _Step, grad: np.ndarray) -> float:
 
 
 class _Systems:
-    """The Newton systems of one step on its pattern: symmetric ones (the energy's Hessian)
-    by the engine's Cholesky or block-Jacobi CG (its preconditioner kept across
-    iterations), the coupled Jacobian by LU when small and block-Jacobi BiCGSTAB when
-    large; the Krylov iterations counted."""
+    """The Newton systems of one step on its pattern: the energy's Hessian by the engine's
+    Cholesky (small) or block-Jacobi conjugate gradients (large; the preconditioner kept
+    across iterations), the coupled Jacobian (not symmetric) by LU (small) or block-Jacobi
+    BiCGSTAB (large); the Krylov iterations counted."""
 
     def __init__(self, st: _Step) -> None:
         self.st = st
         self.jacobi = BlockJacobi()
         self.krylov_iterations = 0
+        #: rounds whose caps stayed lagged (the polish did not converge)
+        self.lagged = 0
 
     def solve(self, jac: np.ndarray, rhs: np.ndarray, rtol: float, x0: np.ndarray | None,
-              symmetric: bool) -> np.ndarray:
+              symmetric: bool = True) -> np.ndarray:
         """The Newton direction `(m, d)`: J p = rhs."""
         st, plan = self.st, self.st.plan
         if st.link is not None:
@@ -314,8 +353,7 @@ class _Systems:
             return np.linalg.solve(k, f)
         if k.shape[0] <= DIRECT_SOLVE_MAX_UNKNOWNS:
             return spla.splu(sp.csc_matrix(k)).solve(f)
-        inv = np.linalg.inv(kdiag)
-        x, its = kern.bicgstab_bsr(plan.indptr, plan.indices, data, inv, f,
+        x, its = kern.bicgstab_bsr(plan.indptr, plan.indices, data, np.linalg.inv(kdiag), f,
                                    np.zeros_like(f) if x0 is None else x0.ravel(), rtol,
                                    10 * len(f))
         if its < 0:
@@ -367,68 +405,104 @@ def _line_search(st: _Step, rnd: _Round, x: np.ndarray, p: np.ndarray, dr: np.nd
     return lo if lo > 0.0 else alpha
 
 
-def _merit(st: _Step, grad: np.ndarray) -> float:
-    """The semi-smooth Newton's merit: the squared out-of-balance forces (N²)."""
-    return float(np.sum(_scaled(st, grad) ** 2))
-
-
-def _coupled_step(st: _Step, rnd: _Round, x: np.ndarray, grad: np.ndarray, jac: np.ndarray,
-                  ls: _Systems, rtol: float, p0: np.ndarray | None
-                  ) -> tuple[np.ndarray, tuple, float] | None:
-    """A semi-smooth Newton step from `x` (the Jacobian `jac` with the caps following N),
-    backtracked on the squared out-of-balance forces: `(x, its gradient, direction)`, or
-    None when it had to be cut below MIN_STEP (a poor direction: a cap's kink between x and
-    the solution)."""
-    p = ls.solve(jac, -grad, rtol, p0, symmetric=False)
-    merit0, alpha = _merit(st, grad), 1.0
-    while alpha >= MIN_STEP:
-        xt = x + alpha * p
-        _live(st, rnd, xt)
-        trial = _gradient(st, rnd, xt, True)
-        if _merit(st, trial[1]) <= (1.0 - 2e-4 * alpha) * merit0:
-            return xt, trial, alpha * p
-        alpha *= 0.5
-    return None
-
-
 def _potential_step(st: _Step, rnd: _Round, x: np.ndarray, ls: _Systems, rtol: float
-                    ) -> tuple[np.ndarray, tuple, np.ndarray]:
-    """A Newton step of the step potential with the caps held at the normal forces of `x`
-    (its Hessian, an exact line search): convex, so it always descends."""
-    _live(st, rnd, x)
-    _, grad, hess, dr = _gradient(st, rnd, x, True, coupled=False)
-    p = ls.solve(hess, -grad, rtol, None, symmetric=True)
-    alpha = _line_search(st, rnd, x, p, dr)
-    xt = x + alpha * p
-    _live(st, rnd, xt)
-    return xt, _gradient(st, rnd, xt, True), alpha * p
+                    ) -> np.ndarray:
+    """A Newton step of the step potential (its Hessian, an exact line search): E is
+    convex, so it always descends."""
+    _, grad, hess, dr = _gradient(st, rnd, x, True)
+    p = ls.solve(hess, -grad, rtol, None)
+    return x + _line_search(st, rnd, x, p, dr) * p
 
 
 def _newton(st: _Step, rnd: _Round, x: np.ndarray, ls: _Systems) -> tuple[np.ndarray, int]:
-    """x solving the step's equations for the round `rnd`, from `x`, to the force residual
-    `st.ftol`: semi-smooth Newton steps (the caps following N) while they descend well,
-    steps of the convex potential with the caps held at the current N once they do not
-    (POOR_STEPS of them in a solve). StepFailure when they do not get there."""
-    _live(st, rnd, x)
-    _, grad, jac, dr = _gradient(st, rnd, x, True)
-    res = _residual(st, grad)
-    first = max(res, 1e-300)
-    p, poor = None, 0
+    """x minimising the step potential of the round `rnd` (its caps held) from `x`: Newton
+    steps with an exact line search until every block's out-of-balance force is below
+    `st.ftol` (the gaps' rotation corrections following each iterate); StepFailure when
+    they do not get there."""
+    _rotation(st, rnd, x)
+    _, grad, _, _ = _gradient(st, rnd, x, False)
+    res = first = max(_residual(st, grad), 1e-300)
     for it in range(MAX_NEWTON + 1):
         if res <= st.ftol:
             return x, it
         if it == MAX_NEWTON:
             break
-        rtol = min(KRYLOV_RTOL_MAX, max(KRYLOV_RTOL_MIN, 0.5 * (res / first)))
-        taken = _coupled_step(st, rnd, x, grad, jac, ls, rtol, p) if poor < POOR_STEPS \
-            else None
-        if taken is None:
-            poor += 1
-            taken = _potential_step(st, rnd, x, ls, rtol)
-        x, (_, grad, jac, dr), p = taken
+        rtol = min(KRYLOV_RTOL_MAX, max(KRYLOV_RTOL_MIN, 0.5 * res / first))
+        x = _potential_step(st, rnd, x, ls, rtol)
+        _rotation(st, rnd, x)
+        _, grad, _, _ = _gradient(st, rnd, x, False)
         res = _residual(st, grad)
     raise StepFailure(f"Newton's method did not reach the force residual {st.ftol:.3g} N in "
                       f"{MAX_NEWTON} iterations (residual {res:.3g} N)", "newton")
+
+
+def _follow(st: _Step, rnd: _Round, x: np.ndarray) -> _Round:
+    """The round with every cap's normal force, and the gaps' rotation corrections, those
+    at `x`."""
+    out = dataclasses.replace(rnd)
+    _rotation(st, out, x)
+    out.nlag = np.maximum(_normal_forces(st, out, x)[1], 0.0)
+    return out
+
+
+def _merit(st: _Step, grad: np.ndarray) -> float:
+    """The squared out-of-balance forces (N²): what a semi-smooth Newton step must lower."""
+    return float(np.sum(_scaled(st, grad) ** 2))
+
+
+def _polish(st: _Step, rnd: _Round, x: np.ndarray, ls: _Systems
+            ) -> tuple[np.ndarray, _Round, int, bool]:
+    """Semi-smooth Newton from `x` on the step's equations with each cap following its
+    contact's normal force (the Jacobian with the cap's dependence on N, a backtracking
+    line search on the squared out-of-balance forces): `(x, its round, iterations,
+    converged)`, converged once every block's out-of-balance force is below `st.ftol`; it
+    stops unconverged where a step descends poorly (cut below MIN_STEP: a cap's kink
+    between x and the solution) or after SEMI_SMOOTH_STEPS."""
+    cur = _follow(st, rnd, x)
+    _, grad, jac, _ = _gradient(st, cur, x, True, coupled=True)
+    res = first = max(_residual(st, grad), 1e-300)
+    p = None
+    for it in range(SEMI_SMOOTH_STEPS + 1):
+        if res <= st.ftol:
+            return x, cur, it, True
+        if it == SEMI_SMOOTH_STEPS:
+            break
+        rtol = min(KRYLOV_RTOL_MAX, max(KRYLOV_RTOL_MIN, 0.5 * res / first))
+        p = ls.solve(jac, -grad, rtol, p, symmetric=False)
+        merit0, alpha = _merit(st, grad), 1.0
+        while True:
+            trial = _follow(st, cur, x + alpha * p)
+            out = _gradient(st, trial, x + alpha * p, True, coupled=True)
+            if _merit(st, out[1]) <= (1.0 - 2e-4 * alpha) * merit0:
+                break
+            alpha *= 0.5
+            if alpha < MIN_STEP:
+                return x, cur, it + 1, False
+        x, cur, p = x + alpha * p, trial, alpha * p
+        _, grad, jac, _ = out
+        res = _residual(st, grad)
+    return x, cur, SEMI_SMOOTH_STEPS, False
+
+
+def _solve_round(st: _Step, rnd: _Round, x: np.ndarray, ls: _Systems
+                 ) -> tuple[np.ndarray, _Round, int]:
+    """The round's solution, `(x, the round it solves, Newton iterations)`: semi-smooth
+    Newton with the caps following N (:func:`_polish`); where that does not converge, the
+    convex step potential minimised with the caps held at the normal forces where it
+    stopped, and the polish again from there; where that does not converge either, the
+    potential once more with the caps of its last iterate (a lag of one round, counted in
+    `Diagnostics.lagged_caps`)."""
+    x, cur, its, converged = _polish(st, rnd, x, ls)
+    for attempt in range(2):
+        if converged:
+            return x, cur, its
+        x, more = _newton(st, cur, x, ls)
+        its += more
+        if attempt == 0:
+            x, cur, more, converged = _polish(st, cur, x, ls)
+            its += more
+    ls.lagged += 1
+    return x, cur, its
 
 
 def _patch_bonds(st: _Step, rnd: _Round, force: np.ndarray, fnorm: np.ndarray
@@ -454,17 +528,13 @@ def _patch_bonds(st: _Step, rnd: _Round, force: np.ndarray, fnorm: np.ndarray
 
 
 def _next_round(st: _Step, rnd: _Round, x: np.ndarray) -> tuple[_Round, bool]:
-    """The next round from the solve `x` of `rnd`, and whether `rnd` already held: no bond
-    broke (a bonded contact pulled beyond its tension, a bonded patch's shear beyond its
-    strength)."""
-    base, cap, tension = rnd.law(st)
-    dr = kern.relative_motion(x, st.row, st.bi, st.bj, st.ti, st.tj)
-    force, _, _ = kern.contact_terms(dr, st.normal, base, st.a, st.cprime, st.shear0, cap,
-                                     st.kn, st.ks, tension, rnd.stick, False, st.mu)
-    fnorm = np.einsum("ij,ij->i", force, st.normal)
+    """The next round from the solution `x` of `rnd`, and whether `rnd` already held: no
+    bond broke (a bonded contact pulled beyond its tension, a bonded patch's shear beyond
+    its strength)."""
+    force, fnorm = _normal_forces(st, rnd, x)
     breaking = _patch_bonds(st, rnd, force, fnorm)
     broken = rnd.broken | breaking
-    return (_Round(rnd.nlag, rnd.delta, broken, rnd.stick & ~broken),
+    return (dataclasses.replace(rnd, broken=broken, stick=rnd.stick & ~broken),
             not np.any(breaking))
 
 
@@ -476,14 +546,16 @@ def _warm(system: BlockSystem, state: State, st: _Step, dt: float) -> np.ndarray
     return state.last_d[st.free, :nd] * (dt / state.last_dt)
 
 
-def _reseat(state: State, st: _Step, bonded: np.ndarray) -> float:
+def _reseat(state: State, st: _Step, bonded: np.ndarray, fixed: np.ndarray) -> float:
     """Energy (J) the springs held at the end of the last step that the step's contacts do
     not start with (re-detected shallower, on another plane or not at all), booked as
     numerical dissipation (:func:`.open_close.reseat_loss`, with the tension a bonded
-    spring holds); a spring that starts with more is not booked: the watchdog sees it."""
+    spring holds; the springs of sleeping blocks keep theirs); a spring that starts with
+    more is not booked: the watchdog sees it."""
     g = np.where(bonded, st.d0, np.minimum(st.d0, 0.0))
     start = 0.5 * st.kn * float(np.sum(g ** 2)) + 0.5 * st.ks * float(np.sum(st.shear0 ** 2))
-    return max(state.contact_energy - start, 0.0)
+    resting = state.memory.spring_energy(st.kn, st.ks, state.resting_contacts(fixed))
+    return max(state.contact_energy - resting - start, 0.0)
 
 
 def newton_step(system: BlockSystem, state: State, contacts: ContactSet,
@@ -501,7 +573,7 @@ def newton_step(system: BlockSystem, state: State, contacts: ContactSet,
     x = _warm(system, state, st, dt)
     iterations = 0
     for _ in range(MAX_ROUNDS):
-        x, its = _newton(st, rnd, x, ls)
+        x, rnd, its = _solve_round(st, rnd, x, ls)
         iterations += its
         nxt, held = _next_round(st, rnd, x)
         if held:
@@ -513,6 +585,7 @@ def newton_step(system: BlockSystem, state: State, contacts: ContactSet,
     clock = diag.tick("solve", clock)
     out = _result(system, state, contacts, patches, st, rnd, x, iterations, dt, broken0)
     out.linear_iterations = ls.krylov_iterations
+    diag.lagged_caps += ls.lagged
     diag.tick("open_close", clock)
     return out
 
@@ -529,7 +602,7 @@ def _result(system: BlockSystem, state: State, contacts: ContactSet, patches: Co
     d = np.zeros((system.n, 12))
     d[st.free, :system.ndof] = x
     numerical += block_dissipation(system, state, d)  # (the bolts' own: engine.loads.bolts)
-    reseat = _reseat(state, st, tension > 0)
+    reseat = _reseat(state, st, tension > 0, system.fixed)
     slip_len = np.linalg.norm(slip, axis=1)
     tangent = np.where((slip_len > 0)[:, None], slip / np.maximum(slip_len, 1e-300)[:, None],
                        contacts.tangent)
