@@ -4,9 +4,10 @@ under its weight (falling, sliding on one plane, sliding on two) and the limit-e
 factor of safety of that mode.
 
 Removability is block theory's own (the joint pyramid's extreme rays); the mode and its
-factor of safety are the vector method of :mod:`engine.analyses.limit_equilibrium` (:func:`solve_modes`) on the
-block's contact planes under its weight alone (dry, no bolts, no seismic load: Mohr-Coulomb
-joints), so key blocks and `polydda le` count a plane's strength the same way.
+factor of safety are the vector method of :mod:`engine.analyses.limit_equilibrium`
+(:func:`solve_modes`) on the block's contact planes under its weight alone (dry, no bolts,
+no seismic load: Mohr-Coulomb joints), so key blocks and `polydda le` count a plane's
+strength the same way.
 
 A block's contact planes are its distinct face planes that are not on the excavation's
 surface; `n` is a plane's outward normal (from the block into its neighbour). A motion
