@@ -94,6 +94,20 @@ def write_report(path: Path, out: Path, threshold: float | None = None) -> Path:
     return out
 
 
+def _with_builder(app: Any) -> None:
+    """The scene builder's page and API on a local app (no jobs: it previews, checks and
+    downloads scenes), with the service's rate limits off and a local client."""
+    from service.api.builder import router
+    from service.api.problems import install_handlers
+    from service.settings import Settings
+
+    app.state.settings = Settings()
+    app.state.rate_limiter = None
+    app.state.auth_failures = None
+    app.include_router(router)
+    install_handlers(app)
+
+
 def local_app(path: Path, max_frames: int = 2000) -> Any:
     """A FastAPI app serving the viewer, the frames and the report of one result file."""
     from fastapi import FastAPI, Query
@@ -112,6 +126,7 @@ def local_app(path: Path, max_frames: int = 2000) -> Any:
                   openapi_url=None)
     app.mount("/static", StaticFiles(directory=Path(__file__).parents[1] / "static"),
               name="static")
+    _with_builder(app)
     work = Path(tempfile.mkdtemp(prefix="polydda-view-"))
     app.state.work_dir = work
 
