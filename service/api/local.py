@@ -208,7 +208,8 @@ def standalone_viewer(path: Path, max_frames: int = 300) -> str:
     importmap = {"imports": {
         "three": module("", three.replace('"./three.core.min.js"', '"three/core"')),
         "three/core": module("three/three.core.min.js"),
-        "three/addons/OrbitControls.js": module("three/OrbitControls.js")}}
+        "three/addons/OrbitControls.js": module("three/OrbitControls.js"),
+        "polydda/section.js": module("section.js")}}
     page = viewer_html(job, "", max_frames=max_frames, play=False)
     page = re.sub(r'<script type="importmap">.*?</script>',
                   f'<script type="importmap">{json.dumps(importmap)}</script>', page)

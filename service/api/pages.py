@@ -131,12 +131,13 @@ def viewer_html(job: JobRecord, root: str, poll_ms: int = 2000, max_frames: int 
     cfg = {"job": base, "frames": f"{base}/results/frames", "poll_ms": poll_ms,
            "max_frames": max_frames, "max_bytes": 48_000_000, "play": play}
     importmap = {"imports": {"three": f"{root}/static/three/three.module.min.js",
-                             "three/addons/": f"{root}/static/three/"}}
+                             "three/addons/": f"{root}/static/three/",
+                             "polydda/": f"{root}/static/"}}
     first = f"{cfg['frames']}?start=0&stop={cfg['max_frames']}&geometry=true"
     head = (f'<script type="importmap">{_script_json(importmap)}</script>'
             + "".join(f'<link rel="modulepreload" href="{root}/static/{m}">' for m in (
                 "viewer.js", "three/three.module.min.js", "three/three.core.min.js",
-                "three/OrbitControls.js"))
+                "three/OrbitControls.js", "section.js"))
             + f'<script type="application/json" id="viewer-config">'
             f"{_script_json({**cfg, 'first': first})}</script>"
             # the first frames load while the scripts do
@@ -175,6 +176,7 @@ def viewer_html(job: JobRecord, root: str, poll_ms: int = 2000, max_frames: int 
             '<span style="color:#c2185b">→</span> normal force</span>'
             '<span id="contact-count" class="muted"></span>'
             '<label><input id="joints" type="checkbox"> joint planes</label>'
+            '<span id="section-controls" class="section-controls"></span>'
             '<label><input id="follow" type="checkbox" checked> follow</label>'
             '<button id="save" title="download the view as PNG">Save image</button>'
             '<label>fps <input id="fps" type="number" min="1" max="60" value="15" '
@@ -193,7 +195,8 @@ def builder_html(root: str, can_run: bool, processes: dict[str, str]) -> str:
     cfg = {"root": root, "can_run": can_run, "processes": processes,
            "schema": f"{root}/builder/schema"}
     importmap = {"imports": {"three": f"{root}/static/three/three.module.min.js",
-                             "three/addons/": f"{root}/static/three/"}}
+                             "three/addons/": f"{root}/static/three/",
+                             "polydda/": f"{root}/static/"}}
     head = (f'<script type="importmap">{_script_json(importmap)}</script>'
             f'<link rel="stylesheet" href="{root}/static/builder.css">'
             f'<script type="application/json" id="builder-config">{_script_json(cfg)}</script>')
