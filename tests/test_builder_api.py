@@ -5,6 +5,7 @@ measured orientations fitted into sets, a GeoTIFF as a terrain grid."""
 
 from __future__ import annotations
 
+import base64
 import io
 import json
 import math
@@ -72,9 +73,11 @@ def test_preview_cuts_what_polydda_blocks_cuts(client: Any) -> None:
     assert [b["name"] for b in doc["blocks"]] == built.block_names
     assert [b["fixed"] for b in doc["blocks"]] == [b.fixed for b in built.model.blocks]
     # the mesh: every block has triangles, every vertex index is in range
-    tb = np.asarray(doc["triangle_block"])
-    assert set(tb.tolist()) == set(range(doc["count"]))
-    assert max(doc["triangles"]) < len(doc["vertices"]) // 3
+    mesh = {k: np.frombuffer(base64.b64decode(v["data"]), dtype=np.dtype(v["dtype"]))
+            for k, v in doc["mesh"].items()}
+    assert set(mesh["triangle_block"].tolist()) == set(range(doc["count"]))
+    assert mesh["triangles"].max() < len(mesh["vertices"]) // 3
+    assert len(mesh["vertex_offsets"]) == doc["count"] + 1
     verdicts = {b["verdict"] for b in doc["blocks"]}
     assert {"fixed", "interior", "key block"} <= verdicts <= set(doc["verdicts"])
     # a key block slides with FS < 1: its mode is a sliding mode, fixed blocks are fixed

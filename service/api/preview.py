@@ -11,6 +11,7 @@ excavated blocks are not analysed. Runs in the API's scene-checking processes
 
 from __future__ import annotations
 
+import base64
 import math
 import time
 from typing import Any
@@ -30,37 +31,48 @@ MODES = ("falling", "sliding on two planes", "sliding on one plane", "stable", "
          "fixed", "excavated")
 
 
-def _free_faces(build: Any) -> list[Any]:
-    """The blocks' polyhedra with their free faces tagged `_FREE`."""
+def _free_faces(build: Any, st: Any) -> list[Any]:
+    """The blocks' polyhedra with their free faces tagged `_FREE` (the others as they
+    are); `st` is the model's flattened surface (engine.results.layout.flatten_model), whose
+    faces' normals are worked out here in one pass (Newell's method)."""
     from engine.geometry.excavations import EXCAVATION_TAG_BASE
     from engine.geometry.polyhedron import FACE_TAG_BOUNDARY, Polyhedron
 
-    dug = bool(build.excavation_names)
+    tags = np.asarray(st.face_tags)
+    if build.excavation_names:
+        free = tags >= EXCAVATION_TAG_BASE
+    else:
+        x, off, conn = st.vertices, st.face_offsets, st.face_connectivity
+        nxt = np.arange(len(conn)) + 1
+        nxt[off[1:] - 1] = off[:-1]
+        cross = np.cross(x[conn], x[conn[nxt]])
+        normal = np.add.reduceat(cross, off[:-1], axis=0) if len(conn) else cross
+        up = normal[:, 2] > UP * np.linalg.norm(normal, axis=1)
+        free = (tags == FACE_TAG_BOUNDARY) & up
     out = []
-    for block in build.model.blocks:
+    fb = st.face_block_offsets
+    for k, block in enumerate(build.model.blocks):
         p = block.polyhedron
-        tags = np.asarray(p.face_tags)
-        if dug:
-            free = tags >= EXCAVATION_TAG_BASE
-        else:
-            free = tags == FACE_TAG_BOUNDARY
-            if free.any():
-                free &= p.face_normals[:, 2] > UP
-        if not free.any():
+        mask = free[fb[k]:fb[k + 1]]
+        if not mask.any():
             out.append(p)  # nothing of it is free: as it is
             continue
         q = Polyhedron(p.vertices, p.face_indptr, p.face_indices,
-                       np.where(free, _FREE, tags), p.pieces)
+                       np.where(mask, _FREE, p.face_tags), p.pieces)
         # the same shape: what it has worked out already (normals, mass) holds for the copy
-        q.__dict__.update({k: v for k, v in p.__dict__.items() if k.startswith("_")
-                           and k not in ("face_tags",)})
+        q.__dict__.update({k: v for k, v in p.__dict__.items() if k.startswith("_")})
         out.append(q)
     return out
 
 
-def key_block_table(build: Any) -> tuple[list[str], list[str], list[float | None]]:
-    """Each block's verdict, mode and factor of safety (None: none) in the preview."""
+def key_block_table(build: Any, st: Any = None) -> tuple[list[str], list[str],
+                                                         list[float | None]]:
+    """Each block's verdict, mode and factor of safety (None: none) in the preview (`st`:
+    the model's flattened surface, made here when not given)."""
     from engine.analyses.keyblocks import key_blocks
+    from engine.results.layout import flatten_model
+
+    st = flatten_model(build.model) if st is None else st
 
     m = build.model
     n = len(m.blocks)
@@ -79,7 +91,7 @@ def key_block_table(build: Any) -> tuple[list[str], list[str], list[float | None
                 for tag, j in m.joint_material_of_tag.items()}
     dj = jm[m.default_joint_material]
     density = np.array([m.materials[b.material].density for b in m.blocks])
-    for kb in key_blocks(_free_faces(build), density, m.body_acceleration, {_FREE},
+    for kb in key_blocks(_free_faces(build, st), density, m.body_acceleration, {_FREE},
                          strength, (math.tan(dj.friction_angle_rad), dj.cohesion), skip):
         k = kb.block
         mode[k] = kb.mode
@@ -96,9 +108,10 @@ def key_block_table(build: Any) -> tuple[list[str], list[str], list[float | None
 
 def preview_document(scene_text: str) -> dict[str, Any]:
     """The preview of a scene (JSON text): `blocks` (name, fixed, volume, verdict, mode,
-    factor of safety), the mesh (`vertices` relative to `origin`, `triangles`,
-    `triangle_block`, `edges`), `extent`, `warnings`, `timings` (s). SceneError when the
-    scene does not build."""
+    factor of safety), the `mesh` (`vertices` relative to `origin`, `vertex_offsets`,
+    `triangles`, `triangle_block`, `edges`: each `{dtype, data}`, little-endian arrays in
+    base64), `extent`, `warnings`, `timings` (s). SceneError when the scene does not
+    build."""
     import json
 
     from engine.results.layout import flatten_model
@@ -109,9 +122,9 @@ def preview_document(scene_text: str) -> dict[str, Any]:
     t0 = time.perf_counter()
     build = build_model(Scene.model_validate(json.loads(scene_text)))
     t1 = time.perf_counter()
-    verdict, mode, fs = key_block_table(build)
-    t2 = time.perf_counter()
     st = flatten_model(build.model)
+    verdict, mode, fs = key_block_table(build, st)
+    t2 = time.perf_counter()
     mesh = {"vertices": st.vertices, "face_offsets": st.face_offsets,
             "face_connectivity": st.face_connectivity,
             "face_block_offsets": st.face_block_offsets}
@@ -125,13 +138,17 @@ def preview_document(scene_text: str) -> dict[str, Any]:
                "excavation": build.excavated[k]}
               for k, (name, b) in enumerate(zip(build.block_names, build.model.blocks,
                                                 strict=True))]
+    mesh_arrays = {"vertices": (x - origin).astype("<f4"),
+                   "vertex_offsets": st.vertex_offsets.astype("<u4"),
+                   "triangles": tris.astype("<u4"), "triangle_block": tri_block.astype("<u4"),
+                   "edges": edges.astype("<u4")}
     t3 = time.perf_counter()
     return {"count": len(blocks), "blocks": blocks, "origin": origin.tolist(),
             "extent": (hi - lo).tolist(),
-            "vertices": np.round(x - origin, 5).ravel().tolist(),
-            "vertex_offsets": st.vertex_offsets.tolist(),
-            "triangles": tris.ravel().tolist(), "triangle_block": tri_block.tolist(),
-            "edges": edges.ravel().tolist(), "warnings": list(build.warnings),
+            # little-endian float32 / uint32 arrays, base64: a tenth of the time of JSON lists
+            "mesh": {k: {"dtype": str(a.dtype.name), "data": base64.b64encode(
+                a.tobytes()).decode()} for k, a in mesh_arrays.items()},
+            "warnings": list(build.warnings),
             "verdicts": list(VERDICTS), "modes": list(MODES),
             "timings": {"cut": round(t1 - t0, 3), "key_blocks": round(t2 - t1, 3),
                         "mesh": round(t3 - t2, 3)}}

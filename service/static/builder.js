@@ -505,6 +505,7 @@ async function preview() {
   $("block-count").textContent = "cutting…";
   try {
     const r = await fetch(api("/builder/preview"), { method: "POST", headers: headers(), body: JSON.stringify(scene), credentials: "same-origin" });
+    const t1 = performance.now();
     const doc = await r.json().catch(() => ({}));
     if (!r.ok) {
       state.problems = doc.errors || [{ loc: "", msg: doc.detail || r.statusText }];
@@ -513,8 +514,10 @@ async function preview() {
       markProblems();
       return;
     }
+    const t2 = performance.now();
     view.show(doc);
-    state.preview = { count: doc.count, counts: view.counts, seconds: doc.seconds, timings: doc.timings };
+    state.preview = { count: doc.count, counts: view.counts, seconds: doc.seconds, timings: doc.timings,
+                      page: { answer: (t1 - t0) / 1000, read: (t2 - t1) / 1000, drawn: (performance.now() - t2) / 1000 } };
     state.previewMs = performance.now() - t0;
     $("block-count").textContent = `${doc.count} blocks`;
     $("preview-time").textContent = `cut in ${doc.seconds.toFixed(2)} s, shown in ${(state.previewMs / 1000).toFixed(2)} s`

@@ -14,6 +14,14 @@ export const MODE_COLOURS = {
   stable: "#2ca02c", interior: "#d5d8dc", fixed: "#7f7f7f", excavated: "#9467bd",
 };
 
+const TYPED = { float32: Float32Array, uint32: Uint32Array };
+
+function decode({ dtype, data }) {
+  // a base64 little-endian array of the preview document
+  const bytes = Uint8Array.from(atob(data), (c) => c.charCodeAt(0));
+  return new TYPED[dtype](bytes.buffer);
+}
+
 export class BlockPreview {
   constructor(canvas, legend, sectionBox) {
     this.canvas = canvas; this.legend = legend; this.sectionBox = sectionBox;
@@ -52,12 +60,13 @@ export class BlockPreview {
 
   show(doc) {
     const first = !this.doc;
+    for (const [k, v] of Object.entries(doc.mesh)) doc[k] = decode(v);
     this.doc = doc;
     if (this.mesh) { this.scene.remove(this.mesh, this.edges); this.mesh.geometry.dispose(); this.edges.geometry.dispose(); }
-    const vertices = new Float32Array(doc.vertices);
+    const vertices = doc.vertices;
     const edgeGeo = new THREE.BufferGeometry();
     edgeGeo.setAttribute("position", new THREE.BufferAttribute(vertices, 3));
-    edgeGeo.setIndex(new THREE.BufferAttribute(new Uint32Array(doc.edges), 1));
+    edgeGeo.setIndex(new THREE.BufferAttribute(doc.edges, 1));
     this.edges = new THREE.LineSegments(edgeGeo, new THREE.LineBasicMaterial({ color: 0x222222, transparent: true, opacity: 0.45 }));
     this.mesh = new THREE.Mesh(new THREE.BufferGeometry(), new THREE.MeshLambertMaterial({
       vertexColors: true, side: THREE.DoubleSide, polygonOffset: true, polygonOffsetFactor: 1, polygonOffsetUnits: 1 }));

@@ -33,6 +33,7 @@ function field(label, input) {
 export function attachSection({ renderer, scene, camera, controls, canvas, box, size,
                                 materials, changed, hideFixed }) {
   renderer.localClippingEnabled = true;
+  let drag = null;
   const state = { on: false, dip: 90, dipDirection: 180, offset: 0, flip: false,
                   hideFixed: false };
   const plane = new THREE.Plane(new THREE.Vector3(0, 0, -1), 0);
@@ -70,7 +71,7 @@ export function attachSection({ renderer, scene, camera, controls, canvas, box, 
     plane.constant = -s * state.offset;
     const clip = state.on ? [plane] : [];
     for (const m of materials()) { m.clippingPlanes = clip; m.needsUpdate = true; }
-    helper.visible = state.on;
+    helper.visible = state.on && drag !== null;  // shown while it is dragged
     helper.position.copy(n).multiplyScalar(state.offset);
     helper.quaternion.setFromUnitVectors(new THREE.Vector3(0, 0, 1), n);
     note.textContent = state.on ? `${Math.round(state.dip)}/${String(Math.round(
@@ -89,7 +90,6 @@ export function attachSection({ renderer, scene, camera, controls, canvas, box, 
   fixed.addEventListener("change", () => { state.hideFixed = fixed.checked; hideFixed(fixed.checked); });
 
   // dragging: Shift moves the plane along its normal, Alt turns it
-  let drag = null;
   canvas.addEventListener("pointerdown", (e) => {
     if (!state.on || !(e.shiftKey || e.altKey)) return;
     drag = { x: e.clientX, y: e.clientY, turn: e.altKey };
@@ -118,7 +118,7 @@ export function attachSection({ renderer, scene, camera, controls, canvas, box, 
     offset.value = state.offset;
     apply();
   });
-  const end = () => { if (drag) { drag = null; controls.enabled = true; } };
+  const end = () => { if (drag) { drag = null; controls.enabled = true; apply(); } };
   canvas.addEventListener("pointerup", end);
   canvas.addEventListener("pointercancel", end);
 
