@@ -39,6 +39,13 @@ class Result:
     def __exit__(self, *exc: object) -> None:
         self.close()
 
+    def __getattr__(self, name: str) -> Any:
+        """The reader's other methods (bolts(), water_resultants(), stages(), vertices(k),
+        block_index(name) ...: docs/results.md) are the result's too."""
+        if name.startswith("_") or name == "engine":
+            raise AttributeError(name)
+        return getattr(self.engine, name)
+
     def __repr__(self) -> str:
         return (f"Result({str(self.path)!r}: {self.status}, {self.engine.n_blocks} blocks, "
                 f"{self.engine.n_steps} recorded steps)")
