@@ -161,3 +161,33 @@ def test_geotiff_becomes_a_terrain_grid(client: Any) -> None:
     junk = client.post("/builder/terrain", content=b"not a tiff",
                        headers={"content-type": "image/tiff"})
     assert junk.status_code == 422 and "GeoTIFF" in junk.json()["detail"]
+
+
+def test_polydda_view_serves_the_builder(tmp_path: Path) -> None:
+    """`polydda view RESULT.h5`'s app has the builder too (it previews and downloads; no
+    jobs to run); `polydda view` without a result is the service itself on a temporary
+    folder, opened at the builder."""
+    import polydda
+    from service.api.local import local_app
+    from service.cli.main import build_parser
+    from service.cli.results import _builder_service
+    from tests.service_helpers import TestClient
+
+    scene = polydda.Scene.load(ROOT / "examples" / "wedge.json")
+    scene["analysis"]["duration"] = 0.01
+    polydda.run(scene, out=tmp_path / "w.h5", progress=False).close()
+    with TestClient(local_app(tmp_path / "w.h5")) as c:
+        page = c.get("/builder")
+        assert page.status_code == 200 and "polydda run" in page.text  # no job service
+        assert c.post("/builder/validate", json=scene.data).status_code == 200
+        doc = c.post("/builder/preview", json=scene.data).json()
+        assert doc["count"] == 2
+    assert build_parser().parse_args(["view"]).result is None
+    app, path, work = _builder_service()
+    try:
+        with TestClient(app) as c:
+            assert path == "/builder" and "id='run'" in c.get(path).text
+    finally:
+        import shutil
+
+        shutil.rmtree(work, ignore_errors=True)

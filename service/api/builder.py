@@ -33,6 +33,10 @@ from service.settings import Settings
 
 router = APIRouter(dependencies=[Depends(_client)], tags=["builder"])
 
+#: the body of the validate and preview routes: a scene, as POST /jobs takes it
+_SCENE_BODY = {"requestBody": {"required": True, "description": "the scene", "content": {
+    "application/json": {"schema": {"$ref": "#/components/schemas/Scene"}}}}}
+
 #: the most measurements the stereonet route fits
 MAX_MEASUREMENTS = 20_000
 
@@ -87,7 +91,7 @@ def _structure(data: Any, settings: Settings) -> Any:
     return check_structure(scene, settings), scene
 
 
-@router.post("/builder/validate", operation_id="builderValidate",
+@router.post("/builder/validate", operation_id="builderValidate", openapi_extra=_SCENE_BODY,
              summary="Check a scene's fields (what POST /jobs checks before cutting): 200 "
                      "with the blocks its joints would cut the domain into, or 422 naming "
                      "every bad field",
@@ -101,7 +105,7 @@ async def builder_validate(data: SceneBody, request: Request) -> dict[str, Any]:
             "problems": []}
 
 
-@router.post("/builder/preview", operation_id="builderPreview",
+@router.post("/builder/preview", operation_id="builderPreview", openapi_extra=_SCENE_BODY,
              summary="Cut a scene's blocks and give them as meshes with each block's "
                      "key-block verdict and kinematic mode (nothing runs)",
              description="Bounded as POST /jobs is: the service's size limits first "
