@@ -177,8 +177,17 @@ class Measurements(BaseModel):
              summary="Fit measured orientations (CSV) into joint sets as `polydda "
                      "stereonet` does: each set's Fisher mean, κ and cone, and the "
                      "stereonet as PNG",
+             openapi_extra={"requestBody": {"required": True, "content": {
+                 "application/json": {"schema": Measurements.model_json_schema()}}}},
              responses=problem_responses(413, 415, 422))
-async def builder_stereonet(body: Measurements) -> dict[str, Any]:
+async def builder_stereonet(data: SceneBody) -> dict[str, Any]:
+    from pydantic import ValidationError
+
+    try:  # the body read as the scenes are (size, JSON), then its fields checked
+        body = Measurements.model_validate(data)
+    except ValidationError as exc:
+        raise invalid_scene([{"loc": ".".join(str(p) for p in e["loc"]) or "body",
+                              "msg": e["msg"]} for e in exc.errors()]) from None
     return await run_in_threadpool(_stereonet, body)
 
 
