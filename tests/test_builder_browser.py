@@ -190,6 +190,8 @@ def test_slope_from_the_form_previewed_run_and_reported(built: dict[str, Any]) -
         assert job["status"] == "successful", job
         assert job["events"] >= 2 and page.evaluate(
             "document.getElementById('run-progress').value") == 100
+        assert job["conclusion"] and job["conclusion"].startswith("The run completed")
+        assert page.inner_text("#run-conclusion") == job["conclusion"]
         shot(built, page, "builder-run.png")
         with page.context.expect_page() as viewer_page:
             page.click("#open-viewer")
@@ -207,7 +209,7 @@ def test_slope_from_the_form_previewed_run_and_reported(built: dict[str, Any]) -
         report = report_page.value
         report.wait_for_load_state("networkidle")
         conclusion = report.inner_text("#conclusion + p.conclusion")
-        assert conclusion.strip()
+        assert conclusion.strip() == job["conclusion"].strip()
         shot(built, report, "builder-report.png", full_page=False)
         report.close()
     finally:

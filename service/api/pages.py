@@ -210,7 +210,8 @@ def builder_html(root: str, can_run: bool, processes: dict[str, str]) -> str:
            "<option value='factor-of-safety'>fos (strength reduction)</option></select>"
            "</label> <button id='run' type='button'>Run</button> "
            "<progress id='run-progress' max='100' value='0' hidden></progress> "
-           "<span id='run-status' role='status'></span> <span id='run-links'></span></div>"
+           "<span id='run-status' role='status'></span> <span id='run-links'></span>"
+           "<p id='run-conclusion'></p></div>"
            if can_run else
            "<div id='run-box'><p class='muted'>This page was opened without the job service "
            "(<code>polydda view RESULT.h5</code>): download the scene and run it with "

@@ -556,10 +556,20 @@ async function run() {
       links.push(h("a", { href: `${base}/report`, target: "_blank", id: "open-report" }, "report"),
         h("a", { href: `${base}/results`, target: "_blank" }, "results"));
       $("run-links").replaceChildren(...links.flatMap((a, i) => (i ? [" · ", a] : [a])));
-      state.job.done = true;
+      showConclusion(`${base}/report`).finally(() => { state.job.done = true; });
     }
   });
   events.addEventListener("gone", () => events.close());
+}
+async function showConclusion(url) {
+  // the report's conclusion, under the run (the whole report: its link)
+  try {
+    const r = await fetch(url, { credentials: "same-origin" });
+    const page = new DOMParser().parseFromString(await r.text(), "text/html");
+    const p = page.querySelector("p.conclusion");
+    $("run-conclusion").textContent = p ? p.textContent : "";
+    state.job.conclusion = p ? p.textContent : null;
+  } catch (err) { $("run-conclusion").textContent = `no report: ${err.message}`; }
 }
 if (cfg.can_run) $("run").addEventListener("click", run);
 
