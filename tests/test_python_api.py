@@ -113,3 +113,15 @@ print(n, len(built.model.blocks))
                      ("schemas.convert.build_model", "polydda.Scene.load(...).build()"),
                      ("schemas.scene.load_scene", "polydda.Scene.load")):
         assert sum(old in ln and new in ln for ln in warned) == 1, (old, warned)
+
+
+def test_keyblocks_is_the_commands_table(capsys: pytest.CaptureFixture[str]) -> None:
+    tunnel = ROOT / "examples" / "tunnel_staged.json"
+    assert main(["keyblocks", str(tunnel), "--json"]) == 0
+    cli = json.loads(capsys.readouterr().out)
+    table = polydda.keyblocks(tunnel)
+    rows = [(e["name"], r["block"], r["mode"], r["removable"]) for e in cli["excavations"]
+            for r in e["blocks"]]
+    assert list(zip(table["excavation"], table["block"], table["mode"], table["removable"],
+                    strict=True)) == rows
+    assert len(rows) > 0
