@@ -148,7 +148,7 @@ def test_geotiff_becomes_a_terrain_grid(client: Any) -> None:
         (33922, "d", 6, (0.0, 0.0, 0.0, 1000.0, 2040.0, 0.0)),
         (42113, "s", 0, "-9999", False)])
     r = client.post("/builder/terrain", content=buf.getvalue(),
-                    headers={"content-type": "image/tiff"})
+                    headers={"content-type": "application/octet-stream"})
     assert r.status_code == 200, r.text
     grid = r.json()["grid"]
     assert (grid["x0"], grid["dx"], grid["dy"]) == (1002.5, 5.0, 5.0)
@@ -159,7 +159,7 @@ def test_geotiff_becomes_a_terrain_grid(client: Any) -> None:
              "boundary": {"fixed_points": []}}
     assert client.post("/builder/validate", json=scene).status_code == 200
     junk = client.post("/builder/terrain", content=b"not a tiff",
-                       headers={"content-type": "image/tiff"})
+                       headers={"content-type": "application/octet-stream"})
     assert junk.status_code == 422 and "GeoTIFF" in junk.json()["detail"]
 
 

@@ -224,7 +224,8 @@ def _stereonet(body: Measurements) -> dict[str, Any]:
              summary="A GeoTIFF elevation model as the scene's inline terrain grid "
                      "(domain.terrain.grid: x0, y0, dx, dy, elevations south to north)",
              openapi_extra={"requestBody": {"required": True, "content": {
-                 "image/tiff": {"schema": {"type": "string", "format": "binary"}}}}},
+                 "application/octet-stream": {"schema": {"type": "string",
+                                                         "format": "binary"}}}}},
              responses=problem_responses(413, 422))
 async def builder_terrain(request: Request, step: Annotated[int, Query(
         ge=1, le=1000, description="keep every step-th node along each axis")] = 1

@@ -246,7 +246,7 @@ async function uploadTerrain(file) {
   const name = file.name.toLowerCase();
   if (name.endsWith(".tif") || name.endsWith(".tiff")) {
     note.textContent = "reading the GeoTIFF…";
-    const r = await fetch(api("/builder/terrain"), { method: "POST", headers: headers("image/tiff"), body: await file.arrayBuffer() });
+    const r = await fetch(api("/builder/terrain"), { method: "POST", headers: headers("application/octet-stream"), body: await file.arrayBuffer() });
     const doc = await r.json();
     if (!r.ok) { note.textContent = doc.detail || r.statusText; return; }
     const t = scene.domain.terrain; delete t.data; delete t.file; delete t.format;
