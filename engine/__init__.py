@@ -61,7 +61,9 @@ def user_entry(replacement: str) -> Any:
 
         @functools.wraps(fn)
         def call(*args: Any, **kwargs: Any) -> Any:
-            caller = str(sys._getframe(1).f_globals.get("__name__", ""))
+            where = sys._getframe(1).f_globals
+            spec = where.get("__spec__")  # a module run with -m is __main__ by its __name__
+            caller = str(getattr(spec, "name", None) or where.get("__name__", ""))
             if caller.split(".")[0] not in _OWN_PACKAGES and name not in _warned:
                 _warned.add(name)
                 warnings.warn(f"{name} belongs to PolyDDA's inner layout, which may change: "
