@@ -80,7 +80,7 @@ def test_run_gives_dataframes_and_an_inline_viewer(tmp_path: Path) -> None:
         assert len(contacts) > 0 and set(contacts["mode"]) <= {"open", "locked", "sliding"}
         assert "kinetic" in " ".join(result.energies().columns) or len(result.energies())
         html = result._repr_html_()
-    assert html.startswith("<iframe srcdoc=") and "/static/" not in html
+    assert html.startswith("<iframe srcdoc=") and "&quot;/static/" not in html  # no URL
     assert "three/core" in html and "viewer-config" in html
 
 
