@@ -314,3 +314,37 @@ def test_inline_viewer_draws_offline(built: dict[str, Any], tmp_path: Path) -> N
     finally:
         page.close()
     assert asked == []
+
+
+def test_measured_orientations_become_joint_sets(built: dict[str, Any]) -> None:
+    """A field CSV of dips and dip directions fitted into two sets on the page: the
+    stereonet is shown and the sets become joint rows with the spacing asked."""
+    from engine.analyses.jointstats import fisher_orientations
+
+    rows = ["dip,dip_direction"]
+    for dip, ddir, seed in ((60, 135, 1), (85, 240, 2)):
+        d, a = fisher_orientations(dip, ddir, 40, 150, seed)
+        rows += [f"{x:.1f},{y:.1f}" for x, y in zip(d, a, strict=True)]
+    csv = built["base"] / "measurements.csv"
+    csv.write_text("\n".join(rows) + "\n")
+    page, bad = open_page(built, "/builder")
+    try:
+        ready(page)
+        page.click("#joint-section details summary")
+        page.set_input_files("#measurements", str(csv))
+        page.fill("#measure-sets", "2")
+        page.fill("#measure-spacing", "5")
+        page.click("#fit-sets")
+        page.wait_for_selector("#stereonet", timeout=60_000)
+        assert page.evaluate("document.getElementById('stereonet').naturalWidth") > 300
+        shot(built, page, "builder-stereonet.png")
+        page.click("#add-sets")
+        joints = page.evaluate("window.builder.scene().joints")
+        got = sorted((round(j["dip"]), round(j["dip_direction"]), j["spacing"]) for j in joints)
+        assert abs(got[0][0] - 60) <= 3 and abs(got[0][1] - 135) <= 4 and got[0][2] == 5
+        assert abs(got[1][0] - 85) <= 3 and got[1][2] == 5
+        assert page.input_value('[data-path="joints.0.spacing"]') == "5"
+        assert page.is_visible("#stereonet")  # still shown with the sets added
+    finally:
+        page.close()
+    assert bad == []

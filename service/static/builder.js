@@ -324,10 +324,16 @@ async function fitMeasurements() {
   const body = { csv: await file.text(), sets: Number($("measure-sets").value) || 2 };
   const r = await fetch(api("/builder/stereonet"), { method: "POST", headers: headers(), body: JSON.stringify(body) });
   const doc = await r.json();
-  const out = $("measure-out");
-  if (!r.ok) { out.replaceChildren(h("p", { class: "bad" }, doc.detail || r.statusText)); return; }
-  state.stereonet = doc;
-  out.replaceChildren(h("img", { src: doc.stereonet, alt: "stereonet of the measured poles", id: "stereonet", width: 360 }),
+  state.stereonet = r.ok ? doc : { error: doc.detail || r.statusText };
+  $("measure-out").replaceChildren(...stereonetOut());
+}
+
+function stereonetOut() {
+  // the fitted sets (state.stereonet): the stereonet, the sets' table, "Add as joint sets"
+  const doc = state.stereonet;
+  if (!doc) return [];
+  if (doc.error) return [h("p", { class: "bad" }, doc.error)];
+  return [h("img", { src: doc.stereonet, alt: "stereonet of the measured poles", id: "stereonet", width: 360 }),
     h("table", {}, h("tr", {}, ...["set", "dip/dip dir.", "κ", "poles", "α95"].map((t) => h("th", {}, t))),
       ...doc.sets.map((s) => h("tr", {}, h("td", {}, s.name), h("td", {}, `${s.dip.toFixed(1)}/${s.dip_direction.toFixed(1)}`),
         h("td", {}, s.kappa.toFixed(1)), h("td", {}, s.count), h("td", {}, `${s.cone_95.toFixed(1)}°`)))),
@@ -340,7 +346,7 @@ async function fitMeasurements() {
         joints.push(j);
       }
       render(); changed();
-    } }, "Add as joint sets"));
+    } }, "Add as joint sets")];
 }
 
 function jointSection() {
@@ -349,12 +355,13 @@ function jointSection() {
     ["joint_material", "joint material", "text"]];
   return section("Joints and joint sets", "joint-section",
     listTable("joints", cols, (k) => ({ name: `J${k + 1}`, dip: 60, dip_direction: 180, point: [0, 0, 0], spacing: 4 }), "joint-table"),
-    h("details", { class: "helper" }, h("summary", {}, "Fit sets to measurements (CSV of dip, dip_direction)"),
+    h("details", { class: "helper", open: state.stereonet ? true : undefined },
+      h("summary", {}, "Fit sets to measurements (CSV of dip, dip_direction)"),
       h("input", { type: "file", id: "measurements", accept: ".csv,.txt" }),
       h("label", {}, " sets ", h("input", { id: "measure-sets", type: "text", size: 3, value: 2 })),
       h("label", {}, " spacing m ", h("input", { id: "measure-spacing", type: "text", size: 4, value: 4 })),
       " ", h("button", { type: "button", id: "fit-sets", onclick: fitMeasurements }, "Fit sets"),
-      h("div", { id: "measure-out" })));
+      h("div", { id: "measure-out" }, ...stereonetOut())));
 }
 
 function materialSection() {
@@ -490,7 +497,7 @@ async function validate() {
   state.problems = r.ok ? [] : (doc.errors || [{ loc: "", msg: doc.detail || r.statusText }]);
   $("valid").textContent = r.ok ? "valid" : `${state.problems.length} problem${state.problems.length === 1 ? "" : "s"}`;
   $("valid").className = r.ok ? "good" : "bad";
-  $("estimate").textContent = r.ok ? `about ${doc.estimated_blocks} blocks` : "";
+  $("estimate").textContent = r.ok ? `about ${doc.estimated_blocks} block${doc.estimated_blocks === 1 ? "" : "s"}` : "";
   $("problems").replaceChildren(...state.problems.map((p) => h("li", { "data-loc": p.loc }, p.loc ? `${p.loc}: ${p.msg}` : p.msg)));
   markProblems();
 }
