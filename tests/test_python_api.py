@@ -125,3 +125,11 @@ def test_keyblocks_is_the_commands_table(capsys: pytest.CaptureFixture[str]) -> 
     assert list(zip(table["excavation"], table["block"], table["mode"], table["removable"],
                     strict=True)) == rows
     assert len(rows) > 0
+
+
+@pytest.mark.slow
+def test_fos_is_the_analytic_planar_block() -> None:
+    """Strength reduction from Python on the planar block with cohesion: FS 1.4576 by
+    hand (examples/planar_cohesion.json), within the bisection's tolerance."""
+    doc = polydda.fos(ROOT / "examples" / "planar_cohesion.json", progress=False)
+    assert doc["factor_of_safety"] == pytest.approx(1.4576, rel=0.01)
