@@ -7,10 +7,13 @@ from another module (the motion kernels, the contact constants), and would run s
 
 from __future__ import annotations
 
+import functools
 import hashlib
 import os
 import sys
+import warnings
 from pathlib import Path
+from typing import Any
 
 _HERE = Path(__file__).resolve().parent
 
@@ -40,3 +43,34 @@ def kernels_cached() -> bool:
     the first step of the first run on a machine compiles them (about a minute)."""
     place = kernel_cache_dir()
     return place.is_dir() and any(place.rglob("_detection_kernels.narrow_phase-*.nbi"))
+
+
+#: top-level packages whose calls are PolyDDA's own (the CLI, the service, the facade, the
+#: tests and benchmarks): they may use the inner layout without a deprecation warning
+_OWN_PACKAGES = frozenset({"engine", "schemas", "service", "polydda", "tests", "benchmarks"})
+_warned: set[str] = set()
+
+
+def user_entry(replacement: str) -> Any:
+    """Decorate a function users called directly before the `polydda` package existed:
+    called from outside PolyDDA's own packages it works as before and warns once per
+    process (DeprecationWarning) that `replacement` is the stable name."""
+
+    def wrap(fn: Any) -> Any:
+        name = f"{fn.__module__}.{fn.__qualname__}"
+
+        @functools.wraps(fn)
+        def call(*args: Any, **kwargs: Any) -> Any:
+            where = sys._getframe(1).f_globals
+            spec = where.get("__spec__")  # a module run with -m is __main__ by its __name__
+            caller = str(getattr(spec, "name", None) or where.get("__name__", ""))
+            if caller.split(".")[0] not in _OWN_PACKAGES and name not in _warned:
+                _warned.add(name)
+                warnings.warn(f"{name} belongs to PolyDDA's inner layout, which may change: "
+                              f"use {replacement} (the stable Python API, docs/python.md)",
+                              DeprecationWarning, stacklevel=2)
+            return fn(*args, **kwargs)
+
+        return call
+
+    return wrap

@@ -19,6 +19,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from engine import user_entry
 from engine.analyses.kinematics import JointSet, SlopeFace
 from engine.geometry.boxes import box_pairs
 from engine.geometry.joints import JointPlane
@@ -657,6 +658,7 @@ def _oddities(scene: Scene, blocks: list[Block], fixed_points: list[FixedPoint])
     return out
 
 
+@user_entry("polydda.Scene.load(...).build()")
 def build_model(scene: Scene | str | Path | dict[str, Any],
                 base_dir: str | Path | None = None) -> BuildResult:
     """The engine Model of a scene (or of a path / JSON text / dict, loaded first).

@@ -23,6 +23,7 @@ from pydantic import (
     model_validator,
 )
 
+from engine import user_entry
 from engine.analyses.sweep import ANALYTIC_QUANTITIES, SWEEP_QUANTITIES, sweep_truncation
 from engine.model import (
     DEFAULT_FRICTION_ANGLE_DEG,
@@ -1217,6 +1218,7 @@ def _parse(source: str | Path | dict[str, Any]) -> Any:
         raise SceneError([{"loc": "", "msg": "not valid JSON: nested too deeply"}]) from None
 
 
+@user_entry("polydda.Scene.load")
 def load_scene(source: str | Path | dict[str, Any]) -> Scene:
     """Parse and validate a scene from a path, JSON text or a dict; raise SceneError if bad.
 

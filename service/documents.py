@@ -462,3 +462,76 @@ def kinematics_text(result: KinematicResult) -> str:
             lines.extend(f"    {'met    ' if c.passed else 'not met'}  {c.test}: {c.detail}"
                          for c in r.conditions)
     return "\n".join(lines)
+
+
+# --------------------------------------------------------------------------- measurements
+
+#: header names accepted for the two columns (case, spaces and underscores ignored)
+DIP_NAMES = {"dip"}
+DIP_DIRECTION_NAMES = {"dipdirection", "dipdir", "dipazimuth", "dd", "azimuth", "ddir"}
+
+
+def _is_number(text: str) -> bool:
+    try:
+        float(text)
+    except ValueError:
+        return False
+    return True
+
+
+def parse_measurements(text: str, path: str) -> tuple[list[float], list[float]]:
+    """Dips and dip directions (degrees) from CSV text: a header naming the columns `dip`
+    and `dip_direction` (or dipdir, dd, azimuth), or two numeric columns dip, dip direction;
+    lines starting with # are comments. SceneError naming the line (of `path`, the name the
+    text is known by) of any bad value. `polydda stereonet` and the scene builder read
+    measurements with it."""
+    import math
+
+    from schemas.errors import SceneError
+
+    def _key(cell: str) -> str:
+        return "".join(ch for ch in cell.lower() if ch.isalnum())
+
+    text = text.removeprefix("\ufeff")
+    rows = [(n, r) for n, r in enumerate(csv.reader(text.splitlines()), 1)
+            if r and any(c.strip() for c in r) and not r[0].lstrip().startswith("#")]
+    if not rows:
+        raise SceneError([{"loc": "", "msg": f"{path}: no measurements"}])
+    head = [_key(c) for c in rows[0][1]]
+    columns = (0, 1)
+    if not _is_number(rows[0][1][0]):
+        dip = next((i for i, h in enumerate(head) if h in DIP_NAMES), None)
+        ddir = next((i for i, h in enumerate(head) if h in DIP_DIRECTION_NAMES), None)
+        if dip is None or ddir is None:
+            raise SceneError([{"loc": "", "msg": f"{path} line {rows[0][0]}: the header needs "
+                               "the columns 'dip' and 'dip_direction' (or dipdir, dd, "
+                               f"azimuth); found {', '.join(rows[0][1])}"}])
+        columns, rows = (dip, ddir), rows[1:]
+    dips, ddirs, problems = [], [], []
+    for n, row in rows:
+        try:
+            d, a = (float(row[i]) for i in columns)
+        except (ValueError, IndexError):
+            problems.append(f"{path} line {n}: expected numbers in columns {columns[0] + 1} "
+                            f"and {columns[1] + 1}, got {','.join(row)}")
+            continue
+        if not (math.isfinite(d) and 0.0 <= d <= 90.0):
+            problems.append(f"{path} line {n}: dip {d:g} is not in 0 to 90 degrees")
+        elif not (math.isfinite(a) and -360.0 <= a <= 360.0):
+            problems.append(f"{path} line {n}: dip direction {a:g} is not in 0 to 360 degrees")
+        else:
+            dips.append(d)
+            ddirs.append(a % 360.0)
+    if problems:
+        raise SceneError([{"loc": "", "msg": p} for p in problems[:20]])
+    return dips, ddirs
+
+
+def _is_number(text: str) -> bool:
+    try:
+        float(text)
+    except ValueError:
+        return False
+    return True
+
+

@@ -86,6 +86,10 @@ class Settings(BaseSettings):
     validation_budget: float = Field(
         120.0, gt=0, description="s of geometry checking per client per minute (a client "
                                  "over it gets 429 until its budget refills)")
+    preview_timeout: float = Field(
+        30.0, gt=0, description="s the scene builder's preview (cutting the blocks and their "
+                                "key-block verdicts) may take; a longer one is refused (422), "
+                                "and it is charged to the client's validation budget")
     auth_failures: int = Field(
         10, ge=1, description="wrong API keys an address may send per minute; beyond, its "
                               "requests with a key get 429 until the minute has passed")

@@ -3,16 +3,18 @@ each block exposed on an excavation's surface, whether it is removable, how it w
 under its weight (falling, sliding on one plane, sliding on two) and the limit-equilibrium
 factor of safety of that mode.
 
-Removability is block theory's own (a linear program); the mode and its factor of safety are
-the vector method of :mod:`engine.analyses.limit_equilibrium` (:func:`solve_modes`) on the
-block's contact planes under its weight alone (dry, no bolts, no seismic load: Mohr-Coulomb
-joints), so key blocks and `polydda le` count a plane's strength the same way.
+Removability is block theory's own (the joint pyramid's extreme rays); the mode and its
+factor of safety are the vector method of :mod:`engine.analyses.limit_equilibrium`
+(:func:`solve_modes`) on the block's contact planes under its weight alone (dry, no bolts,
+no seismic load: Mohr-Coulomb joints), so key blocks and `polydda le` count a plane's
+strength the same way.
 
 A block's contact planes are its distinct face planes that are not on the excavation's
 surface; `n` is a plane's outward normal (from the block into its neighbour). A motion
 `d` separates from a plane when `n · d <= 0`.
 
-- removable: some direction separates from every contact plane (a linear program);
+- removable: some direction separates from every contact plane (an extreme ray of the
+  pyramid does);
 - falling: the weight's direction `r` itself does (FS 0);
 - sliding on plane i: `r · n_i > 0` and the in-plane part of `r` separates from the others;
   FS = (W (r·n_i) tan φ_i + c_i A_i) / (W |r − (r·n_i) n_i|);
@@ -29,7 +31,6 @@ import math
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy.optimize import linprog
 
 from engine.analyses.le_model import ContactPlane, NotApplicable
 from engine.analyses.limit_equilibrium import MODE_NAMES, solve_modes
@@ -82,17 +83,26 @@ def contact_planes(poly: Polyhedron, free_tags: set[int], strength: dict[int, tu
 
 def removable(planes: list[Plane]) -> bool:
     """Whether some direction separates the block from every contact plane (Shi's theorem
-    for a convex block: the joint pyramid is not empty)."""
+    for a convex block: the joint pyramid is not empty).
+
+    The pyramid `{d : n_i · d <= 0}` is more than the origin when the normals leave a
+    direction free (rank < 3) or when one of its extreme rays exists; in three dimensions
+    each extreme ray lies on two of the planes, `±(n_i × n_j)`, so trying those (and `-n_i`
+    for a pyramid bounded by one plane) decides it exactly, without a linear program
+    (microseconds a block instead of milliseconds: the builder's preview colours every
+    exposed block)."""
     if not planes:
         return True
-    a = np.array([p.normal for p in planes])
-    best = -np.inf
-    for sign in np.eye(3).tolist() + (-np.eye(3)).tolist():  # maximise along each axis
-        res = linprog(-np.asarray(sign), A_ub=a, b_ub=np.zeros(len(a)),
-                      bounds=[(-1, 1)] * 3, method="highs")
-        if res.status == 0:
-            best = max(best, -float(res.fun))
-    return best > 1e-9
+    a = np.array([p.normal for p in planes], float)
+    a /= np.linalg.norm(a, axis=1, keepdims=True)
+    if np.linalg.matrix_rank(a, tol=1e-9) < 3:
+        return True  # a line every plane contains: the block slides along it
+    i, j = np.triu_indices(len(a), 1)
+    rays = np.cross(a[i], a[j])
+    norm = np.linalg.norm(rays, axis=1)
+    rays = rays[norm > 1e-9] / norm[norm > 1e-9, None]
+    candidates = np.concatenate([rays, -rays, -a])
+    return bool(np.any(np.all(candidates @ a.T <= 1e-9, axis=1)))
 
 
 def mode_and_factor(planes: list[Plane], weight: float, r: np.ndarray

@@ -19,6 +19,7 @@ from typing import Any
 import h5py
 import numpy as np
 
+from engine import user_entry
 from engine.results.layout import (
     BOLT_FIELDS,
     CONTACT_FIELDS,
@@ -310,6 +311,7 @@ class Result:
         return {name: g[name][a:b] for name in CONTACT_FIELDS}
 
 
+@user_entry("polydda.open_result")
 def open_result(path: str | os.PathLike[str]) -> Result:
     """Open a result file read-only (also one still being written or left by a killed run)."""
     return Result(path)

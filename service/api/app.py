@@ -25,6 +25,7 @@ from fastapi.staticfiles import StaticFiles
 from prometheus_client import CollectorRegistry
 from starlette.concurrency import run_in_threadpool
 
+from service.api.builder import router as builder_router
 from service.api.dependencies import RateLimiter, RootDep, StoreDep, _client
 from service.api.middleware import ErrorBoundary, HeadAsGet, RequestMetrics, SecurityHeaders
 from service.api.openapi import openapi_builder
@@ -128,6 +129,7 @@ def create_app(settings: Settings | None = None, lock: DataDirLock | None = None
     app.add_middleware(ErrorBoundary)
     app.mount("/static", StaticFiles(directory=STATIC_DIR, check_dir=False), name="static")
     app.include_router(router)
+    app.include_router(builder_router)
     install_handlers(app)
     _service_routes(app, settings)
     return app

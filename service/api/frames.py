@@ -84,11 +84,18 @@ def ear_clip(points: np.ndarray) -> list[tuple[int, int, int]]:
 def _triangles_and_edges(result: Result) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Triangles `(T, 3)` of all faces (global vertex ids; convex faces as fans, the others
     by ear clipping), their block `(T,)` and the unique polygon edges `(E, 2)`."""
-    mesh = result.surface()
+    return triangulate(result.surface(), result.n_blocks)
+
+
+def triangulate(mesh: dict[str, np.ndarray], n_blocks: int
+                ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """:func:`_triangles_and_edges` of a surface mesh in the result file's layout
+    (`vertices`, `face_offsets`, `face_connectivity`, `face_block_offsets`): also the
+    builder's preview of blocks that were never run."""
     x, foff, conn = mesh["vertices"], mesh["face_offsets"], mesh["face_connectivity"]
     fboff = mesh["face_block_offsets"]
     sizes = np.diff(foff)
-    face_block = np.repeat(np.arange(result.n_blocks), np.diff(fboff))
+    face_block = np.repeat(np.arange(n_blocks), np.diff(fboff))
     face_of = np.repeat(np.arange(len(sizes)), sizes)
     nxt = np.arange(len(conn)) + 1
     nxt[foff[1:] - 1] = foff[:-1]  # each face's last vertex closes to its first

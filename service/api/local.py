@@ -94,6 +94,20 @@ def write_report(path: Path, out: Path, threshold: float | None = None) -> Path:
     return out
 
 
+def _with_builder(app: Any) -> None:
+    """The scene builder's page and API on a local app (no jobs: it previews, checks and
+    downloads scenes), with the service's rate limits off and a local client."""
+    from service.api.builder import router
+    from service.api.problems import install_handlers
+    from service.settings import Settings
+
+    app.state.settings = Settings()
+    app.state.rate_limiter = None
+    app.state.auth_failures = None
+    app.include_router(router)
+    install_handlers(app)
+
+
 def local_app(path: Path, max_frames: int = 2000) -> Any:
     """A FastAPI app serving the viewer, the frames and the report of one result file."""
     from fastapi import FastAPI, Query
@@ -112,6 +126,7 @@ def local_app(path: Path, max_frames: int = 2000) -> Any:
                   openapi_url=None)
     app.mount("/static", StaticFiles(directory=Path(__file__).parents[1] / "static"),
               name="static")
+    _with_builder(app)
     work = Path(tempfile.mkdtemp(prefix="polydda-view-"))
     app.state.work_dir = work
 
@@ -157,3 +172,59 @@ def local_app(path: Path, max_frames: int = 2000) -> Any:
 
     return app
 
+
+
+def standalone_viewer(path: Path, max_frames: int = 300) -> str:
+    """The viewer page of the result file at `path` as one HTML document that needs no
+    server: the stylesheet, three.js, viewer.js and the frames (every k-th recorded step,
+    at most `max_frames`) are inline, the frames answered by a fetch the page makes of its
+    own data. For `polydda.Result._repr_html_` (Jupyter) and files to send."""
+    import base64
+    import json
+    import math
+    from html import escape as escape_html
+
+    from engine.results.reader import open_result
+    from service.api.frames import encode_binary
+    from service.api.frames import frames as make_frames
+    from service.api.pages import viewer_html
+
+    static = Path(__file__).parents[1] / "static"
+    with open_result(path) as r:
+        job = local_job(path, r.status)
+        stride = max(1, math.ceil(r.n_steps / max(1, max_frames)))
+        payload = make_frames(r, 0, None, stride, with_geometry=True)
+    # one payload holds every frame the page shows: as the viewer's first fetch it leaves
+    # nothing to page on, and no contacts to ask for
+    payload.header.update(n_steps=payload.header["count"], stride=1, start=0,
+                          next_start=None, contacts_recorded=False)
+    data = base64.b64encode(encode_binary(payload)).decode()
+
+    def module(name: str, text: str | None = None) -> str:
+        text = (static / name).read_text(encoding="utf-8") if text is None else text
+        return "data:text/javascript;base64," + base64.b64encode(text.encode()).decode()
+
+    three = (static / "three" / "three.module.min.js").read_text(encoding="utf-8")
+    importmap = {"imports": {
+        "three": module("", three.replace('"./three.core.min.js"', '"three/core"')),
+        "three/core": module("three/three.core.min.js"),
+        "three/addons/OrbitControls.js": module("three/OrbitControls.js"),
+        "polydda/section.js": module("section.js")}}
+    page = viewer_html(job, "", max_frames=max_frames, play=False)
+    page = re.sub(r'<script type="importmap">.*?</script>',
+                  f'<script type="importmap">{json.dumps(importmap)}</script>', page)
+    page = re.sub(r'<link rel="(modulepreload|icon)"[^>]*>', "", page)
+    page = page.replace('<link rel="stylesheet" href="/static/pages.css">',
+                        f"<style>{(static / 'pages.css').read_text(encoding='utf-8')}</style>")
+    first = ("(async () => { const b = atob('" + data + "'); const a = new Uint8Array(b.length);"
+             " for (let i = 0; i < b.length; i++) a[i] = b.charCodeAt(i);"
+             " return new Response(a.buffer); })()")
+    page = re.sub(r"<script>window\.polyddaFirst = fetch\(.*?</script>",
+                  lambda _: f"<script>window.polyddaFirst = {first};</script>", page)
+    page = re.sub(r'<header class="bar">.*?</header>',
+                  lambda _: f'<header class="bar"><h1>PolyDDA</h1>'
+                            f"<span>{escape_html(path.name)} · "
+                            "<span id='title-blocks'></span></span></header>", page, flags=re.S)
+    script = (static / "viewer.js").read_text(encoding="utf-8")
+    return page.replace('<script type="module" src="/static/viewer.js"></script>',
+                        f'<script type="module">{script}</script>')

@@ -131,12 +131,13 @@ def viewer_html(job: JobRecord, root: str, poll_ms: int = 2000, max_frames: int 
     cfg = {"job": base, "frames": f"{base}/results/frames", "poll_ms": poll_ms,
            "max_frames": max_frames, "max_bytes": 48_000_000, "play": play}
     importmap = {"imports": {"three": f"{root}/static/three/three.module.min.js",
-                             "three/addons/": f"{root}/static/three/"}}
+                             "three/addons/": f"{root}/static/three/",
+                             "polydda/": f"{root}/static/"}}
     first = f"{cfg['frames']}?start=0&stop={cfg['max_frames']}&geometry=true"
     head = (f'<script type="importmap">{_script_json(importmap)}</script>'
             + "".join(f'<link rel="modulepreload" href="{root}/static/{m}">' for m in (
                 "viewer.js", "three/three.module.min.js", "three/three.core.min.js",
-                "three/OrbitControls.js"))
+                "three/OrbitControls.js", "section.js"))
             + f'<script type="application/json" id="viewer-config">'
             f"{_script_json({**cfg, 'first': first})}</script>"
             # the first frames load while the scripts do
@@ -175,6 +176,7 @@ def viewer_html(job: JobRecord, root: str, poll_ms: int = 2000, max_frames: int 
             '<span style="color:#c2185b">→</span> normal force</span>'
             '<span id="contact-count" class="muted"></span>'
             '<label><input id="joints" type="checkbox"> joint planes</label>'
+            '<span id="section-controls" class="section-controls"></span>'
             '<label><input id="follow" type="checkbox" checked> follow</label>'
             '<button id="save" title="download the view as PNG">Save image</button>'
             '<label>fps <input id="fps" type="number" min="1" max="60" value="15" '
@@ -184,3 +186,55 @@ def viewer_html(job: JobRecord, root: str, poll_ms: int = 2000, max_frames: int 
             "</div>"
             f'<script type="module" src="{root}/static/viewer.js"></script>')
     return _page(f"PolyDDA viewer {job.id[:8]}", root, body, cls="viewer", head=head)
+
+
+def builder_html(root: str, can_run: bool, processes: dict[str, str]) -> str:
+    """The scene builder (service/static/builder.js): a form bound to the scene's JSON,
+    checked by POST /builder/validate as it changes, the blocks previewed in 3-D (POST
+    /builder/preview), run as a job (`can_run`: this app has the job API)."""
+    cfg = {"root": root, "can_run": can_run, "processes": processes,
+           "schema": f"{root}/builder/schema"}
+    importmap = {"imports": {"three": f"{root}/static/three/three.module.min.js",
+                             "three/addons/": f"{root}/static/three/",
+                             "polydda/": f"{root}/static/"}}
+    head = (f'<script type="importmap">{_script_json(importmap)}</script>'
+            f'<link rel="stylesheet" href="{root}/static/builder.css">'
+            f'<script type="application/json" id="builder-config">{_script_json(cfg)}</script>')
+    extra = ('<span>scene builder</span>'
+             '<label class="file">Open scene <input id="open-scene" type="file" '
+             'accept=".json,application/json"></label>'
+             '<button id="download-scene" type="button">Download scene</button>')
+    run = ("<div id='run-box'><label>Analysis <select id='run-process'>"
+           "<option value='simulation'>run (DDA simulation)</option>"
+           "<option value='limit-equilibrium'>le (limit equilibrium)</option>"
+           "<option value='factor-of-safety'>fos (strength reduction)</option></select>"
+           "</label> <button id='run' type='button'>Run</button> "
+           "<progress id='run-progress' max='100' value='0' hidden></progress> "
+           "<span id='run-status' role='status'></span> <span id='run-links'></span>"
+           "<p id='run-conclusion'></p></div>"
+           if can_run else
+           "<div id='run-box'><p class='muted'>This page was opened without the job service "
+           "(<code>polydda view RESULT.h5</code>): download the scene and run it with "
+           "<code>polydda run</code>, or open the builder with <code>polydda view</code> "
+           "alone or <code>polydda serve</code> to run it from here.</p></div>")
+    body = (_bar(root, extra) +
+            "<main class='builder'>"
+            "<form id='scene-form' autocomplete='off' novalidate></form>"
+            "<section id='side'>"
+            "<div id='status-line'><span id='valid' role='status'></span> "
+            "<span id='estimate' class='muted'></span></div>"
+            "<ul id='problems' class='problems'></ul>"
+            "<div id='preview-bar'><button id='preview' type='button'>Preview blocks</button> "
+            "<span id='block-count'></span> <span id='preview-time' class='muted'></span> "
+            "<label>colour <select id='preview-colour'><option value='verdict'>key-block "
+            "verdict</option><option value='mode'>kinematic mode</option>"
+            "<option value='block'>block</option></select></label></div>"
+            "<div class='stage' id='preview-stage'><canvas id='preview-view'></canvas>"
+            "<div id='preview-legend'></div></div>"
+            "<div id='section-controls' class='section-controls'></div>"
+            f"{run}"
+            "<details id='json-box'><summary>Scene JSON (what Download gives)</summary>"
+            "<pre id='scene-json'></pre></details>"
+            "</section></main>"
+            f'<script type="module" src="{root}/static/builder.js"></script>')
+    return _page("PolyDDA scene builder", root, body, cls="builder", head=head)

@@ -44,10 +44,12 @@ class CheckUnavailable(Exception):
 
 @dataclass
 class Verdict:
-    """A checked scene: `problems` (empty: valid) and the seconds the check took."""
+    """A checked scene: `problems` (empty: valid) and the seconds the check took; for a
+    preview (the builder's), the blocks cut (service.api.preview.preview_document)."""
 
     problems: list[dict[str, str]]
     seconds: float
+    preview: dict[str, Any] | None = None
 
 
 class _Worker:
@@ -70,13 +72,14 @@ class _Worker:
             with contextlib.suppress(Exception):
                 f.close()  # type: ignore[union-attr]
 
-    def ask(self, scene_text: str, timeout: float) -> dict[str, Any]:
+    def ask(self, scene_text: str, timeout: float, preview: bool = False) -> dict[str, Any]:
         """Send one scene, wait up to `timeout` s for the answer (CheckTimeout, or
         CheckUnavailable when the process died)."""
         stdin, stdout = self.proc.stdin, self.proc.stdout
         assert stdin is not None and stdout is not None
+        request = {"scene": scene_text, "preview": True} if preview else {"scene": scene_text}
         try:
-            stdin.write(json.dumps({"scene": scene_text}).encode() + b"\n")
+            stdin.write(json.dumps(request).encode() + b"\n")
             stdin.flush()
         except OSError as exc:
             raise CheckUnavailable(f"the checking process is gone ({exc})") from None
@@ -117,14 +120,15 @@ class ValidationPool:
                 self._idle.put(worker)
         threading.Thread(target=start, name="polydda-validation-warm", daemon=True).start()
 
-    def check(self, scene_text: str, timeout: float) -> Verdict:
-        """Check a scene (blocking: call from a thread); CheckTimeout, CheckUnavailable."""
+    def check(self, scene_text: str, timeout: float, preview: bool = False) -> Verdict:
+        """Check a scene (blocking: call from a thread); CheckTimeout, CheckUnavailable.
+        With `preview`, the answer also holds the builder's preview of its blocks."""
         worker = self._idle.get()
         start = time.monotonic()
         try:
             if worker is None or not worker.alive():
                 worker = self._start()
-            answer = worker.ask(scene_text, timeout)
+            answer = worker.ask(scene_text, timeout, preview)
         except (CheckTimeout, CheckUnavailable, OSError) as exc:
             if worker is not None:
                 self._drop(worker)
@@ -140,7 +144,7 @@ class ValidationPool:
         seconds = time.monotonic() - start
         if "error" in answer:
             raise CheckUnavailable(str(answer["error"]))
-        return Verdict(list(answer.get("problems") or []), seconds)
+        return Verdict(list(answer.get("problems") or []), seconds, answer.get("preview"))
 
     def _start(self) -> _Worker:
         worker = _Worker(self.env, self.nice)
@@ -217,12 +221,16 @@ class ValidationBudget:
 # --------------------------------------------------------------------------- the worker
 
 
-def _answer(scene_text: str) -> dict[str, Any]:
+def _answer(scene_text: str, preview: bool = False) -> dict[str, Any]:
     from schemas.convert import build_model
     from schemas.errors import SceneError
     from schemas.scene import Scene
 
     try:
+        if preview:
+            from service.api.preview import preview_document
+
+            return {"ok": True, "preview": preview_document(scene_text)}
         build_model(Scene.model_validate(json.loads(scene_text)))
     except SceneError as exc:
         return {"problems": exc.problems}
@@ -240,11 +248,12 @@ def worker_main(out: IO[bytes], inp: IO[bytes]) -> None:
 
     for line in inp:
         try:
-            text = json.loads(line)["scene"]
+            request = json.loads(line)
+            text = request["scene"]
         except (ValueError, KeyError, TypeError):
             answer: dict[str, Any] = {"error": "malformed request"}
         else:
-            answer = _answer(text)
+            answer = _answer(text, bool(request.get("preview")))
         out.write(json.dumps(answer).encode() + b"\n")
         out.flush()
 

@@ -222,10 +222,15 @@ def build_parser() -> argparse.ArgumentParser:
                         "repeated)")
     p.set_defaults(func=_command("results", "cmd_plot"))
 
-    p = sub.add_parser("view", help="the 3-D viewer of a local result file in the browser",
+    p = sub.add_parser("view", help="the 3-D viewer of a local result file, or the scene "
+                       "builder, in the browser",
                        description="serve the viewer (and the report) of RESULT.h5 on a local "
-                                   "port and open it in the browser; Ctrl-C stops it")
-    p.add_argument("result", help="HDF5 result file (polydda run --out)")
+                                   "port and open it in the browser, with the scene builder "
+                                   "at /builder; without RESULT.h5, the service on a "
+                                   "temporary folder opened at the scene builder (its scenes "
+                                   "run as jobs there); Ctrl-C stops it")
+    p.add_argument("result", nargs="?", help="HDF5 result file (polydda run --out); omit it "
+                                             "to build a scene")
     p.add_argument("--host", default="127.0.0.1", help="address to listen on")
     p.add_argument("--port", type=int, default=0, help="port (default: any free one)")
     p.add_argument("--no-browser", action="store_true",

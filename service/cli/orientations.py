@@ -5,7 +5,6 @@ their Fisher mean and κ, written as a scene's joints and the sweep's Fisher par
 from __future__ import annotations
 
 import argparse
-import csv
 import json
 import math
 import sys
@@ -14,66 +13,20 @@ from typing import Any
 
 from schemas.errors import SceneError
 from service.cli.common import EXIT_IO, EXIT_OK, print_json
-
-#: header names accepted for the two columns (case, spaces and underscores ignored)
-DIP_NAMES = {"dip"}
-DIP_DIRECTION_NAMES = {"dipdirection", "dipdir", "dipazimuth", "dd", "azimuth", "ddir"}
-
-
-def _key(text: str) -> str:
-    return "".join(ch for ch in text.lower() if ch.isalnum())
+from service.documents import parse_measurements
 
 
 def read_measurements(path: Path) -> tuple[list[float], list[float]]:
-    """Dips and dip directions (degrees) from a CSV file: a header naming the columns `dip`
-    and `dip_direction` (or dipdir, dd, azimuth), or two numeric columns dip, dip direction;
-    lines starting with # are comments. SceneError naming the line of any bad value."""
+    """Dips and dip directions (degrees) from a CSV file
+    (:func:`service.documents.parse_measurements`: a header naming the columns, or two
+    numeric columns). SceneError naming the line of any bad value."""
     try:
         text = path.read_text(encoding="utf-8-sig")
     except FileNotFoundError:
         raise SceneError([{"loc": "", "msg": f"{path}: file not found"}]) from None
     except (OSError, UnicodeDecodeError) as exc:
         raise SceneError([{"loc": "", "msg": f"{path}: cannot read ({exc})"}]) from None
-    rows = [(n, r) for n, r in enumerate(csv.reader(text.splitlines()), 1)
-            if r and any(c.strip() for c in r) and not r[0].lstrip().startswith("#")]
-    if not rows:
-        raise SceneError([{"loc": "", "msg": f"{path}: no measurements"}])
-    head = [_key(c) for c in rows[0][1]]
-    columns = (0, 1)
-    if not _is_number(rows[0][1][0]):
-        dip = next((i for i, h in enumerate(head) if h in DIP_NAMES), None)
-        ddir = next((i for i, h in enumerate(head) if h in DIP_DIRECTION_NAMES), None)
-        if dip is None or ddir is None:
-            raise SceneError([{"loc": "", "msg": f"{path} line {rows[0][0]}: the header needs "
-                               "the columns 'dip' and 'dip_direction' (or dipdir, dd, "
-                               f"azimuth); found {', '.join(rows[0][1])}"}])
-        columns, rows = (dip, ddir), rows[1:]
-    dips, ddirs, problems = [], [], []
-    for n, row in rows:
-        try:
-            d, a = (float(row[i]) for i in columns)
-        except (ValueError, IndexError):
-            problems.append(f"{path} line {n}: expected numbers in columns {columns[0] + 1} "
-                            f"and {columns[1] + 1}, got {','.join(row)}")
-            continue
-        if not (math.isfinite(d) and 0.0 <= d <= 90.0):
-            problems.append(f"{path} line {n}: dip {d:g} is not in 0 to 90 degrees")
-        elif not (math.isfinite(a) and -360.0 <= a <= 360.0):
-            problems.append(f"{path} line {n}: dip direction {a:g} is not in 0 to 360 degrees")
-        else:
-            dips.append(d)
-            ddirs.append(a % 360.0)
-    if problems:
-        raise SceneError([{"loc": "", "msg": p} for p in problems[:20]])
-    return dips, ddirs
-
-
-def _is_number(text: str) -> bool:
-    try:
-        float(text)
-    except ValueError:
-        return False
-    return True
+    return parse_measurements(text, str(path))
 
 
 def joints_and_sweep(sets: list[Any], spacing: float | None, point: list[float]

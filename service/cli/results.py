@@ -94,19 +94,33 @@ CHROMIUMS = ("chromium", "chromium-browser", "google-chrome", "google-chrome-sta
 
 def cmd_view(args: argparse.Namespace) -> int:
     """Serve the service's 3-D viewer for a local result file on a local port and open it
-    in the browser (until Ctrl-C)."""
+    in the browser (until Ctrl-C); its scene builder too (`/builder`). Without a result:
+    the service itself on a temporary data directory, opened at the scene builder, whose
+    scenes then run as jobs."""
     import socket
     import webbrowser
 
-    result = open_result_file("view", args.result)
-    if isinstance(result, int):
-        return result
-    result.close()
     import uvicorn
 
-    from service.api.local import local_app
+    if args.result is None:
+        from service.api.app import is_loopback
 
-    app = local_app(Path(args.result), max_frames=args.max_frames)
+        if not is_loopback(args.host):
+            print(f"polydda view: the scene builder runs jobs: it listens on loopback only "
+                  f"(not {args.host}); use polydda serve with API keys to share it",
+                  file=sys.stderr)
+            return EXIT_SCENE
+        app, page, work = _builder_service()
+    else:
+        result = open_result_file("view", args.result)
+        if isinstance(result, int):
+            return result
+        result.close()
+        from service.api.local import local_app
+
+        app = local_app(Path(args.result), max_frames=args.max_frames)
+        page = next(r.path for r in app.routes if getattr(r, "path", "").endswith("/viewer"))
+        work = None
     try:
         sock = socket.create_server((args.host, args.port))
     except OSError as exc:
@@ -114,10 +128,14 @@ def cmd_view(args: argparse.Namespace) -> int:
               f"{exc.strerror or exc}", file=sys.stderr)
         return EXIT_IO
     port = sock.getsockname()[1]
-    viewer = next(r.path for r in app.routes if getattr(r, "path", "").endswith("/viewer"))
-    url = f"http://{args.host}:{port}{viewer}"
-    print(f"viewer: {url}\nreport: {url.removesuffix('/viewer')}/report\n"
-          "(Ctrl-C stops the server)", flush=True)
+    url = f"http://{args.host}:{port}{page}"
+    if args.result is None:
+        print(f"scene builder: {url}\njobs and results: {work} (removed when it stops)\n"
+              "(Ctrl-C stops the server)", flush=True)
+    else:
+        base = url.removesuffix("/viewer")
+        print(f"viewer: {url}\nreport: {base}/report\nscene builder: "
+              f"http://{args.host}:{port}/builder\n(Ctrl-C stops the server)", flush=True)
     if not args.no_browser:
         webbrowser.open(url)
     server = uvicorn.Server(uvicorn.Config(app, log_level="warning"))
@@ -127,7 +145,23 @@ def cmd_view(args: argparse.Namespace) -> int:
         pass
     finally:
         sock.close()
+        if work is not None:
+            import shutil
+
+            shutil.rmtree(work, ignore_errors=True)
     return EXIT_OK
+
+
+def _builder_service() -> tuple[object, str, Path]:
+    """The REST service on a temporary data directory (its jobs go when `view` stops)
+    and the path of its builder page."""
+    import tempfile
+
+    from service.api.app import create_app
+    from service.settings import Settings
+
+    work = Path(tempfile.mkdtemp(prefix="polydda-view-"))
+    return create_app(Settings(data_dir=work, min_free_bytes=0)), "/builder", work
 
 
 def cmd_report(args: argparse.Namespace) -> int:

@@ -1,6 +1,7 @@
 // PolyDDA result viewer: blocks in 3-D from GET /jobs/{id}/results/frames (service/frames.py).
 import * as THREE from "three";
 import { OrbitControls } from "three/addons/OrbitControls.js";
+import { attachSection } from "polydda/section.js";
 
 const cfg = JSON.parse(document.getElementById("viewer-config").textContent);
 const $ = (id) => document.getElementById(id);
@@ -217,6 +218,12 @@ function build(head, a) {
   camera.position.set(-0.45, -0.8, 0.45).normalize().multiplyScalar(dist);
   controls.target.set(0, 0, 0);
   controls.update();
+  // the section plane and "hide fixed blocks" (service/static/section.js)
+  state.section = attachSection({
+    renderer, scene, camera, controls, canvas: renderer.domElement,
+    box: $("section-controls"), size: 2 * r, materials: () => [mesh.material, edges.material],
+    changed: () => { dirty = true; },
+    hideFixed: (on) => { state.hideFixed = on; draw(state.frame); } });
   g = { head, a, n, V, T, vblock, rel, pos, triPos, triCol, mesh, edges, joints, contacts,
         disp: new Series(3 * n), rot: new Series(4 * n), vel: new Series(3 * n),
         steps: [], times: [], index: [], scale: { displacement: 0, velocity: 0 },
@@ -285,6 +292,7 @@ function draw(k) {
   const { a, n, V, T, vblock, rel } = g;
   const d = g.disp.row(k), rq = g.rot.row(k), P = g.pos.array, out = [0, 0, 0];
   const gone = removedAt(g.times[k]);
+  if (state.hideFixed) for (let b = 0; b < n; b++) if (g.head.fixed[b]) gone.add(b);
   for (let v = 0; v < V; v++) {
     const b = vblock[v];
     if (gone.has(b)) {
