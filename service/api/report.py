@@ -21,12 +21,10 @@ from typing import Any
 
 from service import readable as rd
 from service.api.pages import VERSION, _bar, _page, job_links
-from service.documents import MOVED_THRESHOLD, fos_bracket, movement
+from service.documents import AT_REST_SPEED, MOVED_THRESHOLD, fos_bracket, movement
 from service.jobs.processes import PROCESSES
 from service.jobs.store import JobRecord
 
-#: a block whose centroid moves slower than this (m/s) at the end of a run has come to rest
-AT_REST_SPEED = 1e-3
 #: rows of the moving blocks' table (the rest are counted)
 MAX_ROWS = 200
 #: the raw scene shown in the appendix up to this many characters

@@ -11,6 +11,7 @@ from typing import Any
 
 from schemas.convert import build_model
 from schemas.errors import SceneError
+from schemas.scene import read_json
 from service.cli.common import (
     EXIT_IO,
     EXIT_OK,
@@ -81,8 +82,10 @@ def cmd_sweep(args: argparse.Namespace) -> int:
     a factor of safety each (engine strength reduction or eq. 51), probability of failure."""
     from service.sweep import run_sweep, spec_of_scene
 
-    scene = json.loads(Path(args.scene).read_text(encoding="utf-8"))
-    built = build_model(Path(args.scene))  # the scene must be valid before any realisation
+    # the scene must be valid before any realisation: a missing file, bad JSON or a bad
+    # scene exits 2 naming it (SceneError)
+    built = build_model(Path(args.scene))
+    scene = read_json(args.scene)
     one_model(built, "a sweep")
     section = _sweep_options(args, scene)
     if section is None:

@@ -9,6 +9,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 if TYPE_CHECKING:
+    from engine.results.reader import Result
     from schemas.convert import BuildResult
     from schemas.errors import SceneError
 
@@ -74,3 +75,42 @@ def listed(values: list[str] | None) -> list[str] | None:
         return None
     return [v.strip() for value in values for v in value.split(",") if v.strip()]
 
+
+#: the first bytes of every HDF5 file (at offset 0 for the files the engine writes)
+_HDF5_SIGNATURE = b"\x89HDF\r\n\x1a\n"
+
+
+def open_result_file(command: str, path: str) -> Result | int:
+    """The result file at `path`, open; or, said in one line on stderr naming the file, the
+    exit code: 2 when it is not there or not a result (a scene, another HDF5 file), like any
+    other bad input; 1 when it is there but cannot be read."""
+    from engine.results.reader import open_result
+
+    file = Path(path)
+    if not file.is_file():
+        print(f"polydda {command}: no such result file: {path}", file=sys.stderr)
+        return EXIT_SCENE
+    try:
+        with file.open("rb") as f:
+            head = f.read(8)
+    except OSError as exc:
+        print(f"polydda {command}: cannot read {path}: {exc.strerror or exc}", file=sys.stderr)
+        return EXIT_IO
+    if head != _HDF5_SIGNATURE:
+        if head.lstrip()[:1] in (b"{", b"["):
+            print(f"polydda {command}: {path} is a scene, not a result: run it first "
+                  f"(polydda run {path} --out RESULT.h5), then polydda {command} RESULT.h5",
+                  file=sys.stderr)
+        else:
+            print(f"polydda {command}: {path} is not a PolyDDA result (the HDF5 file that "
+                  "polydda run --out writes)", file=sys.stderr)
+        return EXIT_SCENE
+    try:
+        return open_result(path)
+    except (KeyError, ValueError):
+        print(f"polydda {command}: {path} is an HDF5 file but not a PolyDDA result",
+              file=sys.stderr)
+        return EXIT_SCENE
+    except OSError as exc:
+        print(f"polydda {command}: cannot read {path}: {exc}", file=sys.stderr)
+        return EXIT_IO

@@ -4,6 +4,7 @@ and `seismic` (critical seismic coefficient), with their progress lines on stder
 from __future__ import annotations
 
 import argparse
+import math
 import sys
 from collections.abc import Callable
 from pathlib import Path
@@ -39,8 +40,10 @@ from service.documents import (
     fos_document,
     movement,
     run_summary,
+    run_verdict,
     seismic_controls,
     seismic_document,
+    verdict_line,
     write_json_atomic,
 )
 
@@ -107,20 +110,49 @@ def _run_built(args: argparse.Namespace, built: BuildResult, writer: ResultWrite
     resume = None
     if args.resume_from:
         if not built.stages:
-            print("--resume-from: the scene has no stages to resume", file=sys.stderr)
+            print(f"--resume-from: {args.scene} has no stages to resume", file=sys.stderr)
             return None
-        try:
-            resume = load_checkpoint(args.resume_from)
-        except (OSError, ValueError, KeyError) as exc:
-            print(f"--resume-from: cannot read {args.resume_from} ({exc})", file=sys.stderr)
-            return None
-        why = checkpoint_fits(built.model, built.stages, resume[1])
+        why = checkpoint_problem(args.resume_from)
+        if not why:
+            try:
+                resume = load_checkpoint(args.resume_from)
+            except (OSError, ValueError, KeyError, TypeError) as exc:
+                why = f"{args.resume_from} is not a stage checkpoint of polydda run ({exc})"
+        if not why:
+            why = checkpoint_fits(built.model, built.stages, resume[1])
+        if not why and resume[1].stage == len(built.stages) - 1:
+            why = (f"{args.resume_from} is the end of the last stage "
+                   f"('{built.stages[-1].name}', {len(built.stages)} of {len(built.stages)}): "
+                   "no stage is left to run, and the run that wrote it is complete; resume "
+                   "from an earlier stage's checkpoint, or add a stage after it")
         if why:
             print(f"--resume-from: {why}", file=sys.stderr)
             return None
     checkpoints = args.checkpoints or (f"{out}.stages" if built.stages else None)
     return run_scene(built.model, built.stages, recorder=writer, progress=progress,
                      scene_json=scene_text, checkpoints=checkpoints, resume=resume)
+
+
+def checkpoint_problem(path: str) -> str:
+    """Why the file given to --resume-from is no stage checkpoint ('' when it may be one),
+    naming that file: missing, not the .npz of a state, or without the ledger that
+    `polydda run` writes beside it (`<path>.stage.json`)."""
+    file = Path(path)
+    if not file.is_file():
+        return f"no such checkpoint: {path}"
+    try:
+        with file.open("rb") as f:
+            head = f.read(4)
+    except OSError as exc:
+        return f"cannot read {path}: {exc.strerror or exc}"
+    if head != b"PK\x03\x04":  # an .npz is a zip archive
+        return (f"{path} is not a stage checkpoint (the stage-<k>.npz that polydda run "
+                "writes at each stage's end)")
+    ledger = Path(f"{path}.stage.json")
+    if not ledger.is_file():
+        return (f"{path} has lost its ledger ({ledger.name}, written beside it at the "
+                "stage's end): not a complete stage checkpoint")
+    return ""
 
 
 def run_text(summary: dict[str, Any], fixed: list[bool], result: str) -> list[str]:
@@ -158,6 +190,7 @@ def run_text(summary: dict[str, Any], fixed: list[bool], result: str) -> list[st
         lines.append(f"the largest displacement of a free block is {rd.length(m['still_max'])} "
                      f"({m['still_max_name']})")
     lines += [f"warning: {w}" for w in summary.get("warnings", [])]
+    lines.append(run_verdict(summary, fixed))
     return lines
 
 
@@ -216,7 +249,8 @@ def fos_text(doc: dict[str, Any]) -> list[str]:
     runs = doc.get("runs") or []
     fs = doc.get("factor_of_safety")
     if not isinstance(fs, float):
-        return [f"no factor of safety ({doc.get('status')}): {doc.get('message', '')}"]
+        return [f"no factor of safety ({doc.get('status')}): {doc.get('message', '')}",
+                "Verdict: none — the search found no factor of safety"]
     bracket = fos_bracket(runs)
     how = (f"strength reduction, bisection on tan φ / F over {rd.plural(len(runs), 'trial run')}"
            + (f": holds at F = {bracket[0]:.4g}, fails at {bracket[1]:.4g}" if bracket else ""))
@@ -232,6 +266,7 @@ def fos_text(doc: dict[str, Any]) -> list[str]:
     if doc.get("message"):
         lines.append(doc["message"])
     lines += [f"warning: {w}" for w in doc.get("warnings", [])]
+    lines.append(verdict_line(fs, "FS", bound=doc.get("bound")))
     return lines
 
 
@@ -259,7 +294,22 @@ def cmd_seismic(args: argparse.Namespace) -> int:
             print(result.message)
         for w in doc.get("warnings", []):
             print(f"warning: {w}")
+        print(seismic_verdict(result.critical_coefficient, result.bound))
     return EXIT_OK if result.status == STATUS_COMPLETED else EXIT_RUN
+
+
+def seismic_verdict(kh: float, bound: str | None) -> str:
+    """The last line of `polydda seismic`: the horizontal acceleration (in g) the watched
+    blocks withstand."""
+    if not math.isfinite(kh):
+        return "Verdict: none — the search found no critical seismic coefficient"
+    if bound == "lower":
+        return f"Verdict: holds up to kh {kh:.3f} at least (no trial failed)"
+    if bound == "upper" or kh <= 0:
+        return (f"Verdict: not stable — fails even at kh {kh:.3f} (under its static loads "
+                "alone)" if kh <= 0 else f"Verdict: fails at every kh tried (kh < {kh:.3f})")
+    return (f"Verdict: stable below kh {kh:.3f} — a horizontal acceleration of {kh:.3f} g "
+            "makes the watched blocks fail")
 
 
 def cmd_le(args: argparse.Namespace) -> int:
