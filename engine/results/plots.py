@@ -349,14 +349,51 @@ def plot_snapshot(result: Result | PathLike, step: int | None, path: PathLike, *
     ax.set_zlabel("z up (m)")
     ax.set_title(_title(result, label))
     free = np.array([b for b in np.flatnonzero(~fixed) if b not in gone], dtype=np.int64)
-    if len(free) <= MAX_LABELS:  # block names at their highest vertex
-        for b in free:
+    labels = []
+    if len(free) <= MAX_LABELS:  # block names at their highest vertex, the largest first
+        for b in sorted(free, key=lambda b: -float(np.ptp(xs[b], axis=0).prod())):
             top = xs[b][np.argmax(xs[b][:, 2])]
-            ax.text(*top, f" {result.block_names[b] or b}", fontsize="small", zorder=10)
+            labels.append(ax.text(*top, f" {result.block_names[b] or b}", fontsize="small",
+                                  zorder=10))
     if mappable is not None:
         fig.colorbar(mappable, ax=ax, shrink=0.6,
                      label=f"displacement (m), 0 to {mappable.norm.vmax:.3g} m (fixed: grey)")
+    declutter(fig, ax, labels)
     return _save(fig, path)
+
+
+def _overlapping(boxes: list[Any]) -> bool:
+    """Whether any two of the display boxes overlap."""
+    return any(a.overlaps(b) for k, a in enumerate(boxes) for b in boxes[k + 1:])
+
+
+def declutter(fig: Figure, ax: Any, labels: list[Any]) -> None:
+    """No text over another on a 3-D snapshot: each axis with fewer ticks until its tick
+    labels stand apart (a short axis of a flat scene crowded them), then the block names
+    kept in their order (the largest blocks first), each left out that would cover one
+    already kept."""
+    from matplotlib.ticker import MaxNLocator
+
+    FigureCanvasAgg(fig)
+    renderer = fig.canvas.get_renderer()
+    for axis in (ax.xaxis, ax.yaxis, ax.zaxis):
+        for bins in (6, 4, 3, 2, 1):
+            axis.set_major_locator(MaxNLocator(nbins=bins))
+            fig.canvas.draw()
+            boxes = [t.get_window_extent(renderer) for t in axis.get_ticklabels()
+                     if t.get_visible() and t.get_text()]
+            if not _overlapping(boxes):
+                break
+    if not labels:
+        return
+    fig.canvas.draw()
+    kept: list[Any] = []
+    for text in labels:
+        box = text.get_window_extent(renderer)
+        if any(box.overlaps(k) for k in kept):
+            text.remove()
+        else:
+            kept.append(box)
 
 
 def snapshot_steps(result: Result, times: list[float] | None = None,

@@ -419,7 +419,8 @@ def _result_section(summary: dict[str, Any], meta: dict[str, Any]) -> str:
         "max_penetration": rd.length(summary.get("max_penetration") or 0.0),
         "time_step_cuts": sum((summary.get("time_step_cuts") or {}).values()),
         "relaxed_contacts": summary.get("relaxed_contacts"),
-        "reseat_dissipation": f"{rd.number(summary.get('reseat_dissipation') or 0.0)} J"}
+        "reseat_dissipation": rd.energy(summary.get("reseat_dissipation") or 0.0,
+                                        meta.get("energy_scale"))}
     rows = [[_LABELS[k], v] for k, v in shown.items() if v is not None]
     if isinstance(pen, dict) and "normal" in pen:
         rows.append(["contact penalty", f"{pen['normal']:.3g} N/m normal, "

@@ -1,5 +1,5 @@
 """What the `polydda` commands share: exit codes, JSON output, loading a scene with its
-warnings on stderr, the note about compiling the kernels."""
+warnings on stderr, opening a result file."""
 
 from __future__ import annotations
 
@@ -58,15 +58,6 @@ def one_model(built: BuildResult, analysis: str) -> None:
     from schemas.stage_checks import refuse_stages
 
     refuse_stages(built, analysis)
-
-
-def note_compilation() -> None:
-    """Say why the first step of the first run on a machine takes a while."""
-    from engine import kernels_cached
-
-    if not kernels_cached():
-        print("compiling the engine's numerical kernels: the first run on this machine "
-              "takes about a minute longer (they are cached afterwards)", file=sys.stderr)
 
 
 def listed(values: list[str] | None) -> list[str] | None:

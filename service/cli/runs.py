@@ -6,7 +6,7 @@ from __future__ import annotations
 import argparse
 import math
 import sys
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -29,11 +29,11 @@ from service.cli.common import (
     EXIT_RUN,
     EXIT_SCENE,
     load_scene,
-    note_compilation,
     one_model,
     print_json,
 )
 from service.cli.progress import Progress, bisection_total
+from service.cli.warmup import note_compilation
 from service.documents import (
     fos_bracket,
     fos_controls,
@@ -74,10 +74,10 @@ def cmd_run(args: argparse.Namespace) -> int:
         print(f"cannot write {out}: {exc}", file=sys.stderr)
         return EXIT_IO
     show = not (args.quiet or args.json)
-    if show:
-        note_compilation()
+    compiling = note_compilation(show)
     duration = built.stages[-1].end_time if built.stages else built.model.controls.duration
-    bar = Progress(f"run {Path(args.scene).stem}", duration, unit="s", enabled=show)
+    bar = Progress(f"run {Path(args.scene).stem}", duration, unit="s", enabled=show,
+                   compiling=compiling)
     try:
         res = _run_built(args, built, writer, _run_progress(bar) if show else None,
                          scene_text, out)
@@ -96,7 +96,7 @@ def cmd_run(args: argparse.Namespace) -> int:
         print_json(summary | {"result": str(out)})
         return EXIT_OK if res.status == STATUS_COMPLETED else EXIT_RUN
     fixed = [b.fixed for b in built.model.blocks]
-    print("\n".join(run_text(summary, fixed, str(out))))
+    print("\n".join(run_text(summary, fixed, str(out), shown=built.warnings)))
     return EXIT_OK if res.status == STATUS_COMPLETED else EXIT_RUN
 
 
@@ -155,9 +155,11 @@ def checkpoint_problem(path: str) -> str:
     return ""
 
 
-def run_text(summary: dict[str, Any], fixed: list[bool], result: str) -> list[str]:
+def run_text(summary: dict[str, Any], fixed: list[bool], result: str,
+             shown: Sequence[str] = ()) -> list[str]:
     """What `polydda run` prints at its end: how the run ended, then the free blocks that
-    moved more than the threshold (largest first, with units), then the warnings."""
+    moved more than the threshold (largest first, with units), then the warnings (but those
+    `shown` already, when the scene was loaded), then the verdict."""
     lines = [f"{summary['status']}: {summary['steps']:,} steps, "
              f"{rd.seconds(summary['simulated_time'])} simulated in "
              f"{rd.duration(summary['wall_time'])}; largest penetration "
@@ -189,7 +191,7 @@ def run_text(summary: dict[str, Any], fixed: list[bool], result: str) -> list[st
     elif m["still"]:
         lines.append(f"the largest displacement of a free block is {rd.length(m['still_max'])} "
                      f"({m['still_max_name']})")
-    lines += [f"warning: {w}" for w in summary.get("warnings", [])]
+    lines += [f"warning: {w}" for w in summary.get("warnings", []) if w not in shown]
     lines.append(run_verdict(summary, fixed))
     return lines
 
@@ -199,10 +201,11 @@ def _trials(args: argparse.Namespace, label: str, what: str, tolerance: float,
     """The progress of a bisection (`what` names the value tried, e.g. `F`): a bar over the
     estimated number of trials and one line per trial with its verdict; says first when
     the kernels still have to compile. Nothing with --quiet."""
-    if not args.quiet:
-        note_compilation()
+    quiet = args.quiet or getattr(args, "json", False)
+    compiling = note_compilation(not quiet)
     total = bisection_total([], tolerance, max_runs, relative_to)
-    bar = Progress(label, total, unit="trial", enabled=not args.quiet, tenths=False)
+    bar = Progress(label, total, unit="trial", enabled=not quiet, tenths=False,
+                   compiling=compiling)
     seen: list[tuple[float, bool]] = []
 
     def note(r: TrialRun) -> None:
@@ -239,13 +242,14 @@ def cmd_fos(args: argparse.Namespace) -> int:
     if args.json:
         print_json(doc)
     else:
-        print("\n".join(fos_text(doc)))
+        print("\n".join(fos_text(doc, shown=built.warnings)))
     return EXIT_OK if result.status == STATUS_COMPLETED else EXIT_RUN
 
 
-def fos_text(doc: dict[str, Any]) -> list[str]:
+def fos_text(doc: dict[str, Any], shown: Sequence[str] = ()) -> list[str]:
     """The factor of safety for people: the value to two decimals, how it was found (trial
-    runs, the last bracket), the critical friction angle of each weakened joint material."""
+    runs, the last bracket), the critical friction angle of each weakened joint material,
+    the warnings not `shown` already, and the verdict."""
     runs = doc.get("runs") or []
     fs = doc.get("factor_of_safety")
     if not isinstance(fs, float):
@@ -265,7 +269,7 @@ def fos_text(doc: dict[str, Any]) -> list[str]:
             lines.append(f"critical friction angle of '{name}': {rd.angle(phi)}")
     if doc.get("message"):
         lines.append(doc["message"])
-    lines += [f"warning: {w}" for w in doc.get("warnings", [])]
+    lines += [f"warning: {w}" for w in doc.get("warnings", []) if w not in shown]
     lines.append(verdict_line(fs, "FS", bound=doc.get("bound")))
     return lines
 
@@ -293,7 +297,8 @@ def cmd_seismic(args: argparse.Namespace) -> int:
         if result.message:
             print(result.message)
         for w in doc.get("warnings", []):
-            print(f"warning: {w}")
+            if w not in built.warnings:  # the scene's were said when it was loaded
+                print(f"warning: {w}")
         print(seismic_verdict(result.critical_coefficient, result.bound))
     return EXIT_OK if result.status == STATUS_COMPLETED else EXIT_RUN
 
