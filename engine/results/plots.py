@@ -362,6 +362,14 @@ def plot_snapshot(result: Result | PathLike, step: int | None, path: PathLike, *
     return _save(fig, path)
 
 
+def _tick_boxes(axis: Any, renderer: Any) -> list[Any]:
+    """The display boxes of an axis's tick labels as last drawn (the ticks in its view;
+    get_ticklabels would move a 3-D axis's labels back to their 2-D places first)."""
+    lo, hi = sorted(axis.get_view_interval())
+    return [t.label1.get_window_extent(renderer) for t in axis.get_major_ticks()
+            if lo <= t.get_loc() <= hi and t.label1.get_visible() and t.label1.get_text()]
+
+
 def _overlapping(boxes: list[Any]) -> bool:
     """Whether any two of the display boxes overlap."""
     return any(a.overlaps(b) for k, a in enumerate(boxes) for b in boxes[k + 1:])
@@ -380,9 +388,7 @@ def declutter(fig: Figure, ax: Any, labels: list[Any]) -> None:
         for bins in (6, 4, 3, 2, 1):
             axis.set_major_locator(MaxNLocator(nbins=bins))
             fig.canvas.draw()
-            boxes = [t.get_window_extent(renderer) for t in axis.get_ticklabels()
-                     if t.get_visible() and t.get_text()]
-            if not _overlapping(boxes):
+            if not _overlapping(_tick_boxes(axis, renderer)):
                 break
     if not labels:
         return
