@@ -105,6 +105,10 @@ def test_run_ends_with_the_moving_blocks_in_units(capsys: pytest.CaptureFixture[
     assert float(row[2]) == pytest.approx(226.6 * 0.8660, abs=0.5)  # east, cos 30°
     assert float(row[4]) == pytest.approx(-226.6 * 0.5, abs=0.5)  # down, sin 30°
     assert row[5] == "090/30"
+    # the last line is the verdict, on the speed at the end (g sin 30° (1 - tan 20° / tan
+    # 30°) 0.5 s = 0.906 m/s: still sliding)
+    assert lines[-1].startswith("Verdict: not stable — 1 block still moving at the end "
+                                "(cube at 0.906 m/s")
     assert not RAW_FLOAT.search(out) and "True" not in out
     progress = [ln for ln in err.splitlines() if ln.startswith("run incline: ")]
     assert len(progress) == 10 and " · left " in progress[0]

@@ -15,6 +15,7 @@ quick blocks run by default; every block (the long runs too) with `-m slow`.
 from __future__ import annotations
 
 import html
+import json
 import os
 import re
 import shutil
@@ -253,9 +254,11 @@ def test_readme_is_a_first_page() -> None:
     assert len(text.splitlines()) <= 150
     first = re.search(r"```bash\n(.*?)\n```", text, re.S)
     assert first is not None and first.group(1).splitlines() == [
-        'pip install -e ".[dev]" && polydda run examples/wedge.json --out out/wedge.h5 '
-        "--summary out/wedge-summary.json", "python -m pytest"]
-    assert "python -m pytest\n" in (ROOT / ".ci" / "run").read_text()
+        'pip install -e ".[dev]" && polydda warm-up && polydda run examples/wedge.json '
+        "--out out/wedge.h5 --summary out/wedge-summary.json", "python -m pytest"]
+    ci = (ROOT / ".ci" / "run").read_text()
+    assert "python -m pytest\n" in ci and first.group(1).splitlines()[0].split(" && ", 1)[1] \
+        in ci  # CI runs the README's first command
     for target in re.findall(r"\]\(([^)#]+)(?:#[^)]*)?\)", text):
         if "://" not in target:
             assert (ROOT / target).exists(), target
@@ -280,3 +283,14 @@ def test_no_file_cites_a_page_that_is_not_there() -> None:
             if Path(m.group(1)).name not in names:
                 missing.append(f"{f}: {m.group(1)}")
     assert not missing, missing
+
+
+def test_readme_states_the_measured_first_run() -> None:
+    """The README and getting started say how long the first run takes as measured by
+    `python -m benchmarks.bench_startup --cold` (benchmarks/results/startup_cold.json),
+    in words made from that file."""
+    from benchmarks.bench_startup import COLD_RESULT, cold_sentence
+
+    sentence = cold_sentence(json.loads(COLD_RESULT.read_text()))
+    for page in (ROOT / "README.md", DOCS / "getting-started.md"):
+        assert sentence in " ".join(page.read_text().split()), page.name

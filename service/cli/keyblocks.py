@@ -159,26 +159,37 @@ def keyblock_text(doc: dict[str, Any]) -> str:
 
 
 def keyblock_verdict(doc: dict[str, Any]) -> str:
-    """The last line: the key blocks (removable, FS < 1) and the lowest FS it rests on; with
-    a result, the blocks the run shows still moving."""
+    """The last line: without a result, the key blocks (removable, FS < 1) and the lowest
+    FS it rests on; with one, what the run shows: blocks still moving at the end (not
+    stable), or every block stopped (key blocks held by their neighbours)."""
     rows = [(exc["name"], r) for exc in doc["excavations"] for r in exc["blocks"]]
     keys = [(e, r) for e, r in rows if r["removable"] and r["factor_of_safety"] is not None
             and r["factor_of_safety"] < 1.0]
-    moving = [r["block"] for _, r in rows if r.get("dda") == "still moving at the end"]
-    dda = (f"; the run shows {', '.join(moving)} still moving at the end" if moving else
-           "; in the run every one of them stopped" if any("dda" in r for _, r in rows)
-           else "")
-    if keys:
-        e, low = min(keys, key=lambda x: x[1]["factor_of_safety"])
-        return (f"Verdict: not stable — {rd.plural(len(keys), 'key block')} "
-                f"({', '.join(r['block'] for _, r in keys)}); lowest FS "
-                f"{rd.number(low['factor_of_safety'], 3)} < 1 ({low['block']}, {e}){dda}")
     finite = [(e, r) for e, r in rows if r["removable"] and r["factor_of_safety"] is not None]
-    if finite:
-        e, low = min(finite, key=lambda x: x[1]["factor_of_safety"])
-        return (f"Verdict: stable — no key block; lowest FS {rd.number(low['factor_of_safety'], 3)}"
-                f" ({low['block']}, {e}){dda}")
-    return f"Verdict: stable — no removable block can move under its weight{dda}"
+    low = min(finite, key=lambda x: x[1]["factor_of_safety"]) if finite else None
+    low_text = ("" if low is None else f"lowest FS {rd.number(low[1]['factor_of_safety'], 3)}"
+                f" ({low[1]['block']}, {low[0]})")
+    names = ", ".join(r["block"] for _, r in keys)
+    if any("dda" in r for _, r in rows):  # the run's verdict
+        moving = [r["block"] for _, r in rows if r.get("dda") == "still moving at the end"]
+        moved = [r["block"] for _, r in rows if r.get("dda") == "moved, then stopped"]
+        if moving:
+            return (f"Verdict: not stable — the run shows {', '.join(moving)} still moving at "
+                    f"the end" + (f"; {low_text}" if low_text else ""))
+        fs = "" if low is None else rd.number(low[1]["factor_of_safety"], 3)
+        held = (f"; key block{'s' if len(keys) > 1 else ''} {names} (lowest FS {fs} < 1 on "
+                "its own) held by the blocks around" if keys
+                else f"; {low_text}" if low_text else "")
+        return ("Verdict: stable in the run — every block stopped"
+                + (f" ({', '.join(moved)} after moving)" if moved else "") + held)
+    if keys:
+        fs = rd.number(low[1]["factor_of_safety"], 3) if low is not None else "?"
+        return (f"Verdict: not stable — {rd.plural(len(keys), 'key block')} ({names}): "
+                f"lowest FS {fs} < 1 ({low[1]['block'] if low else '?'}, "
+                f"{low[0] if low else '?'})")
+    if low is not None:
+        return f"Verdict: stable — no key block; {low_text}"
+    return "Verdict: stable — no removable block can move under its weight"
 
 
 def cmd_keyblocks(args: argparse.Namespace) -> int:
