@@ -182,16 +182,15 @@ def _clock(seconds: float) -> str:
 
 def cold_sentence(doc: dict[str, Any]) -> str:
     """What the README says of the first run, from a `--cold` measurement."""
-    r = doc["cold"]
+    r = {k: _clock(v["wall_s"]) for k, v in doc["cold"].items()}
     load = doc["load_average"][0][0]
     return (f"Measured in a fresh copy with a fresh virtual environment and an empty kernel "
             f"cache on {doc['cores']} cores (`python -m benchmarks.bench_startup --cold`, "
             f"load average {load:.1f} from other work): `polydda warm-up` "
-            f"{_clock(r['polydda warm-up']['wall_s'])}, then the run "
-            f"{_clock(r['first run after polydda warm-up']['wall_s'])}; a first run that "
-            f"compiles as it goes took {_clock(r['first run, compiling as met (before)']['wall_s'])}"
-            f", one that warms up by itself {_clock(r['first run, warming up by itself']['wall_s'])}"
-            f"; later runs {_clock(r['second run']['wall_s'])}.")
+            f"{r['polydda warm-up']}, then the run {r['first run after polydda warm-up']}; "
+            f"a first run that compiles as it goes took "
+            f"{r['first run, compiling as met (before)']}, one that warms up by itself "
+            f"{r['first run, warming up by itself']}; later runs {r['second run']}.")
 
 
 def main(argv: list[str] | None = None) -> int:
