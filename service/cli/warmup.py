@@ -149,9 +149,11 @@ def run_scene() -> float:
 def worker(compiled: list[str]) -> dict[str, Any]:
     """One worker: run the warm-up scene compiling the kernel modules `compiled`, the
     others as Python (those that can be)."""
+    cpu = time.process_time()
     python = pythonize([m for m in kernel_modules() if m not in compiled])
     seconds = run_scene()
-    return {"compiled": compiled, "python": python, "seconds": seconds}
+    return {"compiled": compiled, "python": python, "seconds": seconds,
+            "cpu_seconds": time.process_time() - cpu}
 
 
 def warm_up(workers: int | None = None) -> dict[str, Any]:
