@@ -384,15 +384,14 @@ def declutter(fig: Figure, ax: Any, labels: list[Any]) -> None:
 
     FigureCanvasAgg(fig)
     renderer = fig.canvas.get_renderer()
-    for axis in (ax.xaxis, ax.yaxis, ax.zaxis):
-        for bins in (6, 4, 3, 2, 1):
+    crowded = [ax.xaxis, ax.yaxis, ax.zaxis]
+    for bins in (6, 4, 3, 2, 1):  # a draw per round (a large scene draws slowly)
+        for axis in crowded:
             axis.set_major_locator(MaxNLocator(nbins=bins))
-            fig.canvas.draw()
-            if not _overlapping(_tick_boxes(axis, renderer)):
-                break
-    if not labels:
-        return
-    fig.canvas.draw()
+        fig.canvas.draw()
+        crowded = [a for a in crowded if _overlapping(_tick_boxes(a, renderer))]
+        if not crowded:
+            break
     kept: list[Any] = []
     for text in labels:
         box = text.get_window_extent(renderer)
