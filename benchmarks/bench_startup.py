@@ -184,9 +184,10 @@ def cold_sentence(doc: dict[str, Any]) -> str:
     """What the README says of the first run, from a `--cold` measurement."""
     r = {k: f"{_clock(v['wall_s'])} ({_clock(v['cpu_s'])} of CPU)"
          for k, v in doc["cold"].items()}
-    load = doc["load_average"][0][0]
+    start, end = doc["load_average"][0][0], doc["load_average"][1][0]
     return (f"Measured in a fresh copy with a fresh virtual environment and an empty kernel "
-            f"cache on {doc['cores']} cores shared with other work (load average {load:.1f}; "
+            f"cache on {doc['cores']} cores shared with other work (load average {start:.1f} "
+            f"at the start, {end:.1f} at the end; "
             f"`python -m benchmarks.bench_startup --cold`): `polydda warm-up` "
             f"{r['polydda warm-up']}, then the run {r['first run after polydda warm-up']}; "
             f"a first run that compiles as it goes took "
