@@ -202,7 +202,8 @@ def note_compilation(show: bool = True) -> bool:
     if kernels_cached():
         return False
     cores = os.cpu_count() or 1
-    parallel = cores > 1 and os.environ.get("POLYDDA_WARM_UP", "1") != "0"
+    parallel = (cores > 1 and os.environ.get("POLYDDA_WARM_UP", "1") != "0"
+                and os.environ.get("NUMBA_DISABLE_JIT", "0") in ("", "0"))  # nothing to cache
     if show:
         print("compiling the engine's numerical kernels first (once per machine"
               + (f", on {cores} cores" if parallel else "")
