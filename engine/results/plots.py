@@ -326,8 +326,12 @@ def plot_snapshot(result: Result | PathLike, step: int | None, path: PathLike, *
         faces = [("0.7" if fixed[b] else palette[b]) for b in colours]
         mappable = None
     else:  # the colour bar spans the displacements shown (max of the free blocks' faces)
-        vmax = float(vals.max()) if len(vals) and vals.max() > 0 else 1.0
-        mappable = ScalarMappable(norm=Normalize(vmin=0.0, vmax=vmax), cmap="viridis")
+        top = float(vals.max()) if len(vals) and vals.max() > 0 else 1.0
+        # the colour bar in the unit of its largest value (m, mm or µm: no 1e-6 offset)
+        unit, scale = next((u, f) for u, f in (("m", 1.0), ("mm", 1e3), ("µm", 1e6))
+                           if top * f >= 1.0 or u == "µm")
+        vals = vals * scale
+        mappable = ScalarMappable(norm=Normalize(vmin=0.0, vmax=top * scale), cmap="viridis")
         faces = [("0.7" if fixed[b] else mappable.to_rgba(v))
                  for b, v in zip(colours, vals, strict=True)]
     coll = Poly3DCollection(polys, facecolors=faces, edgecolors="k", linewidths=0.3)
@@ -357,7 +361,8 @@ def plot_snapshot(result: Result | PathLike, step: int | None, path: PathLike, *
                                   zorder=10))
     if mappable is not None:
         fig.colorbar(mappable, ax=ax, shrink=0.6,
-                     label=f"displacement (m), 0 to {mappable.norm.vmax:.3g} m (fixed: grey)")
+                     label=f"displacement ({unit}), 0 to {mappable.norm.vmax:.3g} {unit} "
+                           "(fixed: grey)")
     declutter(fig, ax, labels)
     return _save(fig, path)
 
