@@ -82,14 +82,14 @@ def _overlaps(fig: Any) -> tuple[list[str], int]:
 @pytest.mark.parametrize("case", ["flat", "tunnel"])
 def test_snapshot_labels_do_not_overlap(tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
                                         case: str) -> None:
-    """A flat scene (30 unit cubes 2 cm apart on a 6 x 5 grid: a short z axis crowded its
+    """A flat scene (30 unit cubes 0.5 m apart on a 6 x 5 grid: a short z axis crowded its
     tick labels) and the staged tunnel after its excavation (26 free blocks: names over
     names): no text covers another, and most names stay; without the thinning both have
     texts over texts (the test can fail)."""
     from engine.results import plots
 
     if case == "flat":
-        scene = cubes(30, gap=0.02) | {"analysis": {"duration": 0.002, "time_step": 0.001}}
+        scene = cubes(30, gap=0.5) | {"analysis": {"duration": 0.002, "time_step": 0.001}}
     else:
         scene = json.loads((ROOT / "examples" / "tunnel_staged.json").read_text())
         for stage in scene["stages"]:
@@ -156,4 +156,4 @@ def test_warm_up_fills_an_empty_cache(tmp_path: Path) -> None:
     proc = subprocess.run([sys.executable, "-c", count], cwd=ROOT, env=env,
                           capture_output=True, text=True, timeout=600)
     assert proc.returncode == 0, proc.stderr
-    assert proc.stdout.strip() == "0"
+    assert proc.stdout.strip().splitlines()[-1] == "0"  # compilations after the warm-up
