@@ -1,6 +1,6 @@
 """Both contact solvers on the same cases, in one run: speed against accuracy (issue 29).
 
-Accuracy: the analytic cases (VALIDATION.md 1 and 5) at Δt 1 ms, their error and wall time.
+Accuracy: the analytic cases (docs/validation.md) at Δt 1 ms, their error and wall time.
 Speed: the cut rock masses of `benchmarks.pile.rock_mass_model` (10 m cube, three sets,
 φ 30°, asked Δt 1 ms; STEPS steps) and the shared piles (their whole second), each in a
 process of its own: the wall per step and per phase, iterations per step (open-close

@@ -1,4 +1,4 @@
-"""Analytic cases (VALIDATION.md 1a, 2, 4, 6) and the speed–accuracy sweep over Δt, penalty
+"""Analytic cases (docs/validation.md) and the speed–accuracy sweep over Δt, penalty
 and open-close iterations: error against wall time, with the Pareto front per case."""
 
 from __future__ import annotations
@@ -24,7 +24,7 @@ DOWN_DIP = np.array([np.cos(ALPHA), 0.0, -np.sin(ALPHA)])
 STRIKE = np.array([0.0, 1.0, 0.0])
 UP_NORMAL = np.array([np.sin(ALPHA), 0.0, np.cos(ALPHA)])
 INCLINE_AXES = np.array([DOWN_DIP, STRIKE, UP_NORMAL])
-#: VALIDATION.md case 1a: d(1 s) for φ = 20° on 30°
+#: docs/validation.md: d(1 s) for φ = 20° on 30°
 INCLINE_D1 = 0.906407
 #: case 2: line of intersection (downward) and accelerations along it
 WEDGE_LINE = np.array([0.113060, -0.869407, -0.480987])

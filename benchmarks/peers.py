@@ -25,7 +25,7 @@ from benchmarks import harness as h
 from benchmarks.cases import DOWN_DIP, INCLINE_AXES, INCLINE_D1, STRIKE, UP_NORMAL
 
 A_INCLINE = 2.0 * INCLINE_D1  #: m/s², ½ a t² = 0.906407 m at 1 s
-#: tilted gravity equivalent to the 30° incline (VALIDATION.md case 1, optional variant)
+#: tilted gravity equivalent to the 30° incline (docs/validation.md, optional variant)
 TILTED_G = (4.905, 0.0, -8.495709)
 
 

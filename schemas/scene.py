@@ -1205,17 +1205,25 @@ def _parse(source: str | Path | dict[str, Any]) -> Any:
             raise SceneError([{"loc": "", "msg": f"{path}: file not found"}]) from None
         except (OSError, UnicodeDecodeError) as exc:
             raise SceneError([{"loc": "", "msg": f"{path}: cannot read ({exc})"}]) from None
+        where = f"{path}: "
     else:
-        text = source
+        text, where = source, ""
     try:
         return json.loads(text)
     except json.JSONDecodeError as exc:
         raise SceneError(
-            [{"loc": "", "msg": f"not valid JSON: {exc.msg} at line {exc.lineno} "
+            [{"loc": "", "msg": f"{where}not valid JSON: {exc.msg} at line {exc.lineno} "
               f"column {exc.colno}"}]
         ) from None
     except RecursionError:
-        raise SceneError([{"loc": "", "msg": "not valid JSON: nested too deeply"}]) from None
+        raise SceneError([{"loc": "", "msg": f"{where}not valid JSON: nested too deeply"}]
+                         ) from None
+
+
+def read_json(path: str | Path) -> Any:
+    """The JSON document in the file at `path`; SceneError naming the file when it is
+    missing, unreadable or not JSON."""
+    return _parse(Path(path))
 
 
 @user_entry("polydda.Scene.load")

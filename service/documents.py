@@ -14,6 +14,7 @@ import contextlib
 import csv
 import io
 import json
+import math
 import os
 import tempfile
 from pathlib import Path
@@ -261,6 +262,42 @@ def movement(blocks: list[dict[str, Any]], fixed: list[bool],
             "fixed": len(blocks) - len(free)}
 
 
+#: a block slower than this (m/s) at the end of a run has come to rest (the report's and the
+#: run's verdict)
+AT_REST_SPEED = 1e-3
+
+
+def run_verdict(summary: dict[str, Any], fixed: list[bool],
+                threshold: float = MOVED_THRESHOLD) -> str:
+    """The last line of `polydda run`, the report's conclusion in one line: stable (no free
+    block moved more than `threshold`), not stable (blocks still moving at the end: the
+    fastest and its speed), or moved and came to rest; a run that did not complete says so."""
+    from service import readable as rd
+
+    if summary.get("status") != "completed":
+        return (f"Verdict: none — the run {summary.get('status', 'did not complete')} at "
+                f"{rd.seconds(summary.get('simulated_time') or 0.0)}")
+    m = movement(summary.get("blocks") or [], fixed, threshold)
+    limit = rd.length(threshold)
+    if not m["moved"]:
+        largest = (f" (largest {rd.length(m['still_max'])}, {m['still_max_name']})"
+                   if m["still"] else "")
+        return f"Verdict: stable — no free block moved more than {limit}{largest}"
+    speeds = {b.get("name"): float(np.linalg.norm((b.get("velocity") or [0.0] * 3)[:3]))
+              for b in summary.get("blocks") or []}
+    moving = sorted((b for b in m["moved"] if speeds.get(b["name"], 0.0) > AT_REST_SPEED),
+                    key=lambda b: -speeds[b["name"]])
+    top = m["moved"][0]
+    if moving:
+        fast = moving[0]
+        return (f"Verdict: not stable — {rd.plural(len(moving), 'block')} still moving at "
+                f"the end ({fast['name']} at {rd.number(speeds[fast['name']], 3)} m/s, "
+                f"moved {rd.length(fast['magnitude'])})")
+    return (f"Verdict: moved, then came to rest — {top['name']} moved "
+            f"{rd.length(top['magnitude'])}; every free block slower than "
+            f"{AT_REST_SPEED * 1e3:g} mm/s at the end")
+
+
 def fos_bracket(runs: list[dict[str, Any]], key: str = "factor") -> tuple[float, float] | None:
     """The last bisection bracket of a factor-of-safety (or kh) search: the largest value
     that held and the smallest that failed (None without both)."""
@@ -385,7 +422,10 @@ def le_document(result: LimitEquilibriumResult, build: BuildResult) -> dict[str,
 
 
 def le_text(doc: dict[str, Any]) -> str:
-    """A few lines: the factor of safety and mode, the planes, the forces, the notes."""
+    """A few lines: the factor of safety and mode, the planes, the forces (kN / MN, one unit
+    per vector, round-off as 0), the notes, and the verdict last."""
+    from service import readable as rd
+
     fs = doc["factor_of_safety"]
     srf = doc["strength_reduction_factor"]
     lines = [f"limit equilibrium of {doc['block']}: factor of safety "
@@ -395,22 +435,42 @@ def le_text(doc: dict[str, Any]) -> str:
     if srf is not None and (fs is None or abs(srf - fs) > 1e-9 * abs(fs)):
         lines.append(f"strength-reduction factor {srf:.4f} (passive bolts in the driving "
                      "force: what `polydda fos` finds)")
+    scale = max([abs(doc.get("driving_force") or 0.0), abs(doc.get("resisting_force") or 0.0)]
+                + [abs(x) for f in doc["forces"] for x in f["vector"]])
     if doc["direction"]:
         d = doc["direction"]
-        lines.append(f"direction: trend {d['trend']:.2f}°, plunge {d['plunge']:.2f}°; "
-                     f"driving {doc['driving_force']:.6g} N, resisting "
-                     f"{doc['resisting_force']:.6g} N")
+        lines.append(f"direction: trend {rd.azimuth(d['trend'])}, plunge "
+                     f"{rd.angle(d['plunge'], 2)}; driving "
+                     f"{rd.force(doc['driving_force'], scale)}, resisting "
+                     f"{rd.force(doc['resisting_force'], scale)}")
     for p in doc["planes"]:
         n = p["normal_force"]
-        lines.append(f"  {p['name']} {p['dip']:.1f}/{p['dip_direction']:05.1f}: "
-                     f"{'slides, N ' + format(n, '.6g') + ' N' if n is not None else 'free'}"
-                     f"; area {p['area']:.4g} m², φ {p['friction_angle']:.4g}°, "
-                     f"c {p['cohesion']:.6g} Pa, water {p['water_force']:.6g} N")
+        lines.append(f"  {p['name']} {p['dip']:.1f}/{p['dip_direction'] % 360:05.1f}: "
+                     f"{'slides, N ' + rd.force(n, scale) if n is not None else 'free'}"
+                     f"; area {rd.area(p['area'])}, φ {rd.degrees(p['friction_angle'])}, "
+                     f"c {rd.stress(p['cohesion'])}, water {rd.force(p['water_force'], scale)}")
     for f in doc["forces"]:
-        lines.append(f"  {f['kind'].replace('_', ' ')} ({f['name']}): "
-                     f"[{', '.join(f'{x:.6g}' for x in f['vector'])}] N")
+        lines.append(f"  {f['kind'].replace('_', ' ')} ({f['name']}): {rd.forces(f['vector'])}")
     lines += [f"note: {n}" for n in doc["notes"]]
+    lines.append(verdict_line(fs, "FS"))
     return "\n".join(lines)
+
+
+def verdict_line(value: float | None, what: str = "FS", limit: float = 1.0,
+                 bound: str | None = None, digits: int = 2) -> str:
+    """The last line of an analysis: `Verdict: stable — FS 1.37` or `Verdict: not stable —
+    FS 0.83 < 1`, with the number it rests on (`bound` "lower": the value is at least it;
+    "upper": less than it); the report's conclusion in one line."""
+    if value is None or not math.isfinite(value):
+        return f"Verdict: stable — nothing drives the block ({what} unbounded)"
+    while digits < 6 and (value < limit) != (round(value, digits) < limit):
+        digits += 1  # 0.9996 is not "1.00 < 1"
+    shown = f"{value:.{digits}f}"
+    if bound == "lower":
+        return f"Verdict: stable — {what} ≥ {shown}"
+    if bound == "upper" or value < limit:
+        return f"Verdict: not stable — {what} {'< ' if bound == 'upper' else ''}{shown} < {limit:g}"
+    return f"Verdict: stable — {what} {shown}"
 
 
 # --------------------------------------------------------------------------- kinematics
@@ -435,6 +495,8 @@ def kinematics_document(result: KinematicResult) -> dict[str, Any]:
 def kinematics_text(result: KinematicResult) -> str:
     """A short plain-text report: the admissible sets and pairs of each mode, then every
     test with each of its conditions, met or not, and the numbers."""
+    from service import readable as rd
+
     s = result.slope
     lines = [f"slope face {s.dip:g}/{s.dip_direction % 360:03g} (dip/dip direction), friction "
              f"angle {s.friction_angle:g}° (joints with their own joint material's φ use it)",
@@ -443,8 +505,8 @@ def kinematics_text(result: KinematicResult) -> str:
              f"±{result.limits.direct_toppling:g}°"]
     for w in result.wedge:
         if w.trend is not None:
-            lines.append(f"intersection {w.sets[0]}/{w.sets[1]}: trend {w.trend:.2f}°, "
-                         f"plunge {w.plunge:.2f}°")
+            lines.append(f"intersection {w.sets[0]}/{w.sets[1]}: trend {rd.azimuth(w.trend)}, "
+                         f"plunge {rd.angle(w.plunge, 2)}")
     groups = (("planar sliding", result.planar, lambda r: r.set),
               ("wedge sliding", result.wedge, lambda r: "/".join(r.sets)),
               ("flexural toppling", result.flexural_toppling, lambda r: r.set),

@@ -1,6 +1,9 @@
-"""Numbers for people: lengths, angles, forces, volumes and durations with their units and as
-many digits as mean something (the CLI's text and the reports; the JSON documents keep every
-digit). No `7.151881302842081`, no Python `True` or `['cube']`."""
+"""Numbers for people, the one formatter of the CLI's text and the reports (the JSON documents
+keep every digit): lengths, angles, azimuths, forces, stresses, energies, volumes and
+durations in engineering units (mm, kN, MN, kPa, kJ) with the significant figures that fit
+the quantity; round-off noise (below NOISE of the quantity's scale) shown as 0, never
+`1.56179e-13`; no negative zero (`-0.00°`); azimuths in [0, 360) after rounding (never
+`360.00°`). No `7.151881302842081`, no Python `True` or `['cube']`."""
 
 from __future__ import annotations
 
@@ -8,10 +11,27 @@ import math
 from collections.abc import Sequence
 from typing import Any
 
+#: a value smaller than this fraction of its scale (the largest of the quantities it stands
+#: with: the components of a vector, the forces on a block) is round-off: shown as 0
+NOISE = 1e-9
+#: engineering units, largest first: (factor, name)
+FORCE_UNITS = ((1e6, "MN"), (1e3, "kN"), (1.0, "N"))
+STRESS_UNITS = ((1e9, "GPa"), (1e6, "MPa"), (1e3, "kPa"), (1.0, "Pa"))
+ENERGY_UNITS = ((1e6, "MJ"), (1e3, "kJ"), (1.0, "J"))
 
-def number(x: float, digits: int = 4) -> str:
+
+def denoised(x: float, scale: float | None = None) -> float:
+    """`x`, or 0.0 when it is round-off against `scale` (|x| <= NOISE |scale|); no -0.0."""
+    if scale is not None and math.isfinite(x) and abs(x) <= NOISE * abs(scale):
+        return 0.0
+    return x + 0.0
+
+
+def number(x: float, digits: int = 4, scale: float | None = None) -> str:
     """A plain number to `digits` significant digits, without an exponent in the range a
-    rock engineer meets (1e-4 to 1e7): 0.0123, 12.35, 2801, 1.2e-05."""
+    rock engineer meets (1e-4 to 1e7): 0.0123, 12.35, 2801, 1.2e-05; 0 when it is round-off
+    against `scale`."""
+    x = denoised(x, scale)
     if not math.isfinite(x):
         return "–"
     if x == 0:
@@ -25,6 +45,34 @@ def number(x: float, digits: int = 4) -> str:
     if decimals and abs(float(text)) >= 10.0 ** (exponent + 1):  # 0.99999 rounds to 1.0000
         text = f"{x:.{decimals - 1}f}"
     return text
+
+
+def quantity(x: float, units: Sequence[tuple[float, str]], digits: int = 4,
+             scale: float | None = None) -> str:
+    """`x` in the largest of `units` it reaches, to `digits` significant digits: 2.551 kN,
+    3.500 MN, 20.0 kPa; `0 N` (the smallest unit) for zero or round-off against `scale`."""
+    x = denoised(x, scale)
+    if not math.isfinite(x):
+        return "–"
+    if x == 0:
+        return f"0 {units[-1][1]}"
+    factor, name = next(((f, n) for f, n in units if abs(x) >= f), units[-1])
+    return f"{number(x / factor, digits)} {name}"
+
+
+def vector(values: Sequence[float], units: Sequence[tuple[float, str]],
+           digits: int = 4) -> str:
+    """A vector in one unit (its largest component's), every component with the same
+    decimals, round-off against the largest shown as 0: `[2.551, 0, -1.2] kN`."""
+    xs = [float(v) for v in values]
+    top = max((abs(v) for v in xs if math.isfinite(v)), default=0.0)
+    if top == 0.0:
+        return "[" + ", ".join("0" if math.isfinite(v) else "–" for v in xs) + f"] {units[-1][1]}"
+    factor, name = next(((f, n) for f, n in units if top >= f), units[-1])
+    decimals = max(0, digits - 1 - math.floor(math.log10(top / factor)))
+    shown = [fixed(denoised(v, top) / factor, decimals) if math.isfinite(v) else "–"
+             for v in xs]
+    return "[" + ", ".join("0" if t.strip("-0.") == "" else t for t in shown) + f"] {name}"
 
 
 def fixed(x: float, decimals: int) -> str:
@@ -58,30 +106,54 @@ def point(p: Sequence[float]) -> str:
 
 
 def angle(x: float, decimals: int = 1) -> str:
-    """An angle in degrees: 33.4°."""
-    return f"{x:.{decimals}f}°" if math.isfinite(x) else "–"
+    """An angle in degrees: 33.4° (no -0.0°)."""
+    return f"{fixed(x, decimals)}°" if math.isfinite(x) else "–"
 
 
-def force(x: float) -> str:
-    """A force: 512 N, 40.0 kN, 2.35 MN."""
+def degrees(x: float) -> str:
+    """An angle as a scene gives it, to at most two decimals without trailing zeros: 40°,
+    38.5°, 33.93°."""
     if not math.isfinite(x):
         return "–"
-    ax = abs(x)
-    if ax >= 1e6:
-        return f"{x / 1e6:.2f} MN"
-    if ax >= 1e3:
-        return f"{x / 1e3:.1f} kN"
-    return f"{x:.0f} N"
+    text = fixed(x, 2).rstrip("0").rstrip(".")
+    return f"{text or '0'}°"
 
 
-def stress(x: float) -> str:
-    """A stress or pressure: 250 Pa, 20.0 kPa, 1.50 MPa, 10.0 GPa."""
+def azimuth(x: float, decimals: int = 2) -> str:
+    """An azimuth (trend, dip direction) in [0, 360) after rounding: 172.59°, 0.00° for
+    359.999°, never 360.00°."""
     if not math.isfinite(x):
         return "–"
-    for scale, unit, d in ((1e9, "GPa", 1), (1e6, "MPa", 2), (1e3, "kPa", 1)):
-        if abs(x) >= scale:
-            return f"{x / scale:.{d}f} {unit}"
-    return f"{x:.0f} Pa"
+    r = round(x % 360.0, decimals)
+    return f"{fixed(0.0 if r >= 360.0 else r, decimals)}°"
+
+
+def force(x: float, scale: float | None = None) -> str:
+    """A force to four significant digits: 512.0 N, 40.00 kN, 2.350 MN (0 N for round-off
+    against `scale`)."""
+    return quantity(x, FORCE_UNITS, 4, scale)
+
+
+def forces(values: Sequence[float]) -> str:
+    """A force vector in one unit: [1148, -418, 1025] kN."""
+    return vector(values, FORCE_UNITS)
+
+
+def stress(x: float, scale: float | None = None) -> str:
+    """A stress or pressure to three significant digits: 250 Pa, 20.0 kPa, 1.50 MPa,
+    10.0 GPa."""
+    return quantity(x, STRESS_UNITS, 3, scale)
+
+
+def energy(x: float, scale: float | None = None) -> str:
+    """An energy to four significant digits: 1.234 kJ, 0 J for round-off against `scale`
+    (the run's largest energy)."""
+    return quantity(x, ENERGY_UNITS, 4, scale)
+
+
+def area(x: float) -> str:
+    """An area: 97.57 m²."""
+    return f"{number(x)} m²"
 
 
 def volume(x: float) -> str:

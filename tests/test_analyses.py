@@ -1,4 +1,4 @@
-"""The paper's wedge (VALIDATION.md case 2) and the factor of safety by strength reduction."""
+"""The paper's wedge (docs/validation.md) and the factor of safety by strength reduction."""
 
 from __future__ import annotations
 

@@ -82,8 +82,9 @@ def test_bad_scene_exits_2_with_one_problem_per_line(
 
 def test_malformed_json_and_missing_file(capsys: pytest.CaptureFixture[str],
                                          tmp_path: Path) -> None:
-    code, _, err = run(capsys, "blocks", write_scene(tmp_path, '{"blocks": [1,]}'))
-    assert code == 2 and err.startswith("not valid JSON: ") and "line 1 column" in err
+    path = write_scene(tmp_path, '{"blocks": [1,]}')
+    code, _, err = run(capsys, "blocks", path)
+    assert code == 2 and err.startswith(f"{path}: not valid JSON: ") and "line 1 column" in err
     code, _, err = run(capsys, "validate", str(tmp_path / "missing.json"))
     assert code == 2 and err.strip().endswith("missing.json: file not found")
 
@@ -220,7 +221,7 @@ def test_run_writes_result_summary_and_vtkhdf(capsys: pytest.CaptureFixture[str]
     assert {"wall_time", "max_penetration", "blocks"} <= set(doc)
     wedge = next(b for b in doc["blocks"] if b["name"] == "B2")
     assert set(wedge) >= {"name", "centroid", "rotation", "displacement", "velocity"}
-    # ½ a t² along the line of intersection at a = g sin ψ (VALIDATION.md 2.1)
+    # ½ a t² along the line of intersection at a = g sin ψ (docs/validation.md)
     assert np.linalg.norm(wedge["displacement"]) == pytest.approx(0.5 * 4.718485 * 0.01,
                                                                   rel=0.02)
 
@@ -255,10 +256,10 @@ def test_run_of_a_bad_scene_exits_2(capsys: pytest.CaptureFixture[str], tmp_path
 
 def test_plot_of_a_missing_or_foreign_file_says_so_in_one_line(
         capsys: pytest.CaptureFixture[str], tmp_path: Path) -> None:
-    """`polydda plot` of a file that is not there (exit 1), or is a scene, or is not a result
-    (exit 2, like any other bad input): one line that says what it is, not h5py's message."""
+    """`polydda plot` of a file that is not there, or is a scene, or is not a result (exit 2,
+    like any other bad input): one line that says what it is, not h5py's message."""
     code, out, err = run(capsys, "plot", str(tmp_path / "nope.h5"), "--out", str(tmp_path))
-    assert code == 1 and err.strip() == f"polydda plot: no such result file: {tmp_path}/nope.h5"
+    assert code == 2 and err.strip() == f"polydda plot: no such result file: {tmp_path}/nope.h5"
     foreign = tmp_path / "scene.h5"
     foreign.write_text("{}")
     code, out, err = run(capsys, "plot", str(foreign), "--out", str(tmp_path))
@@ -316,7 +317,7 @@ def test_plot_chooses_blocks_and_snapshot_times(capsys: pytest.CaptureFixture[st
     assert not (tmp_path / "bad").exists()
     code, _, err = run(capsys, "plot", str(tmp_path / "missing.h5"))
     # one line that says what is wrong, not the HDF5 library's message
-    assert code == 1 and err == f"polydda plot: no such result file: {tmp_path / 'missing.h5'}\n"
+    assert code == 2 and err == f"polydda plot: no such result file: {tmp_path / 'missing.h5'}\n"
 
 
 def test_run_says_when_it_compiles_the_kernels(capsys: pytest.CaptureFixture[str],
@@ -326,6 +327,7 @@ def test_run_says_when_it_compiles_the_kernels(capsys: pytest.CaptureFixture[str
     takes a minute; with the kernels cached it says nothing of it."""
     import engine
 
+    monkeypatch.setenv("POLYDDA_WARM_UP", "0")  # no parallel compilation (tests/test_warmup)
     scene = EXAMPLES / "free_fall.json"
     for cached, expected in ((False, True), (True, False)):
         monkeypatch.setattr(engine, "kernels_cached", lambda c=cached: c)
@@ -397,4 +399,4 @@ def test_submit_to_an_absent_server_says_so_in_one_line(capsys: pytest.CaptureFi
     assert err.startswith(f"polydda submit: cannot reach the PolyDDA server at "
                           f"http://127.0.0.1:{port}")
     code, _, err = run(capsys, "submit", "no-such-scene.json")
-    assert code == 1 and err == "polydda submit: no such scene file: no-such-scene.json\n"
+    assert code == 2 and err == "polydda submit: no such scene file: no-such-scene.json\n"

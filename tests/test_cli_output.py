@@ -85,7 +85,7 @@ def test_bisection_total_estimates_the_trials() -> None:
 def test_run_ends_with_the_moving_blocks_in_units(capsys: pytest.CaptureFixture[str],
                                                   tmp_path: Path) -> None:
     """The 1 m cube on the 30° incline with φ 20° slides d = ½ g (sin 30° − cos 30° tan 20°) t²
-    = ½ × 9.81 × 0.18479 × 0.5² = 0.2266 m in 0.5 s (VALIDATION.md 1a), down the dip: trend
+    = ½ × 9.81 × 0.18479 × 0.5² = 0.2266 m in 0.5 s (docs/validation.md), down the dip: trend
     090, plunge 30. The end of `run` lists it in mm to 0.1 mm, in a log it printed a line per
     tenth with the time left; nothing is raw."""
     scene = json.loads((EXAMPLES / "incline.json").read_text())
@@ -105,6 +105,10 @@ def test_run_ends_with_the_moving_blocks_in_units(capsys: pytest.CaptureFixture[
     assert float(row[2]) == pytest.approx(226.6 * 0.8660, abs=0.5)  # east, cos 30°
     assert float(row[4]) == pytest.approx(-226.6 * 0.5, abs=0.5)  # down, sin 30°
     assert row[5] == "090/30"
+    # the last line is the verdict, on the speed at the end (g sin 30° (1 - tan 20° / tan
+    # 30°) 0.5 s = 0.906 m/s: still sliding)
+    assert lines[-1].startswith("Verdict: not stable — 1 block still moving at the end "
+                                "(cube at 0.906 m/s")
     assert not RAW_FLOAT.search(out) and "True" not in out
     progress = [ln for ln in err.splitlines() if ln.startswith("run incline: ")]
     assert len(progress) == 10 and " · left " in progress[0]
@@ -128,7 +132,10 @@ def test_fos_text_says_how_it_was_found() -> None:
     assert fos_text(doc) == [
         "factor of safety 0.63 (strength reduction, bisection on tan φ / F over 4 trial runs: "
         "holds at F = 0.6289, fails at 0.6328)",
-        "critical friction angle of 'joint': 29.9°", "warning: a warning"]
+        "critical friction angle of 'joint': 29.9°", "warning: a warning",
+        "Verdict: not stable — FS 0.63 < 1"]
+    assert fos_text(doc, shown=["a warning"])[-2:] == [  # said when the scene was loaded
+        "critical friction angle of 'joint': 29.9°", "Verdict: not stable — FS 0.63 < 1"]
     doc |= {"critical_friction_angle": [29.9310748, 31.25], "joint_materials": ["a", "b"]}
     assert fos_text(doc)[1:3] == ["critical friction angle of 'a': 29.9°",
                                   "critical friction angle of 'b': 31.2°"]

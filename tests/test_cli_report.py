@@ -29,7 +29,7 @@ def run(capsys: pytest.CaptureFixture[str], *argv: str) -> tuple[int, str, str]:
 
 @pytest.fixture(scope="module")
 def sliding(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    """The cube of VALIDATION.md 1a (30° incline, φ 20°) run for 0.3 s: it slides
+    """The cube of docs/validation.md (30° incline, φ 20°) run for 0.3 s: it slides
     d = ½ g (sin 30° − cos 30° tan 20°) t² = ½ × 9.81 × 0.18479 × 0.09 = 81.6 mm and is
     still moving at g × 0.18479 × 0.3 = 0.544 m/s; the slab is fixed."""
     d = tmp_path_factory.mktemp("local")

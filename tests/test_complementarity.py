@@ -1,4 +1,4 @@
-"""The complementarity contact solve against the analytic cases (VALIDATION.md 1, 3–7).
+"""The complementarity contact solve against the analytic cases (docs/validation.md).
 
 Hard contacts: no penalty spring, so where the open-close iteration's answers carry the
 spring's penetration W/k, these are exact (to the solve's tolerance). Each case's model is

@@ -43,7 +43,7 @@ def test_rotated_box_second_moments_rotate() -> None:
 @pytest.mark.parametrize("seed", range(5))
 def test_mass_properties_match_trimesh(seed: int) -> None:
     """Random convex hulls and an L-shaped (concave) prism: volume, centroid and
-    C = ½ tr(I)·1 − I (I the unit-density inertia tensor about the centroid, THEORY.md)
+    C = ½ tr(I)·1 − I (I the unit-density inertia tensor about the centroid, docs/theory.md)
     agree with trimesh."""
     rng = np.random.default_rng(seed)
     block = convex_hull(rng.normal(size=(15, 3)) * [2.0, 1.0, 0.5]) if seed else prism(
@@ -145,7 +145,7 @@ def test_degenerate_inputs() -> None:
     (45.0, 180.0, (0, -np.sqrt(0.5), np.sqrt(0.5))),
 ])
 def test_dip_convention(dip: float, ddir: float, normal: tuple[float, ...]) -> None:
-    """THEORY.md: upward normal (sin δ sin α, sin δ cos α, cos δ); x East, y North."""
+    """docs/theory.md: upward normal (sin δ sin α, sin δ cos α, cos δ); x East, y North."""
     np.testing.assert_allclose(dip_normal(dip, ddir), normal, atol=1e-15)
     if 0 < dip < 90:
         np.testing.assert_allclose(normal_to_dip(dip_normal(dip, ddir)), (dip, ddir))

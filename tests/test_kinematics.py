@@ -44,7 +44,7 @@ def wedge_scene(**face: float) -> dict:
 
 def test_paper_wedge_intersection_and_verdicts() -> None:
     """J1 50/110, J2 55/240 in the vertical face 90/180 of examples/wedge.json: the
-    intersection is 172.59/28.75 (VALIDATION.md 2.1); it daylights (vertical face) but
+    intersection is 172.59/28.75 (docs/validation.md); it daylights (vertical face) but
     plunges less than φ = 40°, so no wedge; the sets' dip directions are 70° and 60° off the
     face (no planar sliding), their poles 110° and 120° off (no toppling)."""
     sets, face = kinematic_inputs(WEDGE)
@@ -65,7 +65,7 @@ def test_paper_wedge_intersection_and_verdicts() -> None:
 def test_paper_wedge_slides_below_its_plunge() -> None:
     """With φ = 20° < 28.75° the wedge is admissible and rides on both planes (neither dip
     direction lies between the trend 172.6° and the face's 180°/175°); in the face 65/175 of
-    VALIDATION.md 2.2 it daylights: apparent dip atan(tan 65° cos 2.41°) = 64.98° > 28.75°."""
+    docs/validation.md it daylights: apparent dip atan(tan 65° cos 2.41°) = 64.98° > 28.75°."""
     for face in ({"friction_angle": 20}, {"dip": 65, "dip_direction": 175, "friction_angle": 20}):
         r = kinematic_analysis(*kinematic_inputs(wedge_scene(**face)))
         (w,) = r.wedge

@@ -130,7 +130,7 @@ def test_planar_under_pseudo_static_kh_and_kv() -> None:
 
 
 def test_the_wedge_dry_and_with_water() -> None:
-    """VALIDATION.md 2.1 (Hoek & Bray's vector method): N_A = 0.663468 W, N_B = 0.596576 W,
+    """docs/validation.md (Hoek & Bray's vector method): N_A = 0.663468 W, N_B = 0.596576 W,
     ψi = 28.750°: FS = (N_A + N_B) tan 40° / (W sin ψi) = 2.19819, sliding on both planes
     along trend 172.59°. examples/wedge_water.json (the 10 m wedge of 2.2, W = 7 277 374 N,
     N_A = 4 828 308 N, N_B = 4 341 508 N, driving 3 500 324 N) with u = 16 350 Pa on J1

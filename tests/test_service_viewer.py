@@ -381,7 +381,7 @@ def test_report_of_a_sweep_has_its_distribution_and_the_kinematics(tmp_path: Pat
     assert f"{lo:.3g} – {hi:.3g}" in text and "Monte Carlo sweep" in text
     assert "<figure id='sweep-figure'><img src=\"data:image/png;base64," in text
     assert (job_dir / "report" / "sweep.png").is_file()
-    # the kinematics of the wedge in its vertical face 90/180 (VALIDATION.md 2.1)
+    # the kinematics of the wedge in its vertical face 90/180 (docs/validation.md)
     assert "Slope face 90/180" in text and "trend 172.59°, plunge 28.75°" in text
     assert "<tr><td>wedge sliding</td><td>none</td></tr>" in text
     assert "plunge 28.75° &lt; φ 40°" in text  # why the wedge cannot slide

@@ -1,4 +1,4 @@
-"""DDA time stepping against analytic solutions (VALIDATION.md cases 1, 3, 4, 5, 6, 7)."""
+"""DDA time stepping against analytic solutions (docs/validation.md)."""
 
 from __future__ import annotations
 
@@ -67,7 +67,7 @@ def incline_model(phi_deg: float, b: float = 1.0, h: float = 1.0, duration: floa
 
 
 def test_validation_case1_cube_vertices_match() -> None:
-    """Our incline builder reproduces the exact cube of VALIDATION.md case 1."""
+    """Our incline builder reproduces the exact cube of docs/validation.md."""
     cube = incline_model(20).blocks[1].polyhedron
     expected = np.array([(0, 0, 0), (0.866025, 0, -0.5), (0, 1, 0), (0.866025, 1, -0.5),
                          (0.5, 0, 0.866025), (1.366025, 0, 0.366025), (0.5, 1, 0.866025),
@@ -148,7 +148,7 @@ def test_impact_settles_to_static_penetration_within_energy_bound() -> None:
     assert log.frames[-1].energies["kinetic"] < 1e-6 * W * 1.0
     bound = (W + np.sqrt(W**2 + 2 * k_total * W * 1.0)) / k_total
     assert res.max_penetration <= bound
-    # regression value of the classic (β = ½, γ = 1) integrator, VALIDATION.md case 4
+    # regression value of the classic (β = ½, γ = 1) integrator, docs/validation.md
     assert res.max_penetration == pytest.approx(2.146e-3, rel=0.01)
     t, c = log.series(1)
     after = t > 0.46
@@ -178,7 +178,7 @@ def test_contact_damping_settles_the_bouncing_impact() -> None:
     e2 = (np.exp(-zeta * theta / wd) * np.sin(theta) / wd) ** 2
     apex = c[t > 0.46, 2].max() - 0.5
     assert apex < e2 * 1.0
-    assert apex < 0.5 * 0.551  # VALIDATION.md case 4: the undamped apex at this k_n, Δt
+    assert apex < 0.5 * 0.551  # docs/validation.md: the undamped apex at this k_n, Δt
 
 
 def test_fast_block_does_not_tunnel_through_thin_plate() -> None:

@@ -20,7 +20,7 @@ from service.sweep import analytic_fs, realisation_scene, run_sweep
 
 EXAMPLES = Path(__file__).resolve().parents[1] / "examples"
 SCENE = json.loads((EXAMPLES / "wedge.json").read_text())
-K, PLUNGE = 1.437213, 28.7499  # VALIDATION.md 2.1
+K, PLUNGE = 1.437213, 28.7499  # docs/validation.md
 PHI_C = math.degrees(math.atan(math.tan(math.radians(PLUNGE)) / K))  # 20.893°
 SEED = 2026
 
@@ -113,7 +113,7 @@ def test_dda_sweep_pof_matches_eq51(tmp_path: Path, n: int) -> None:
     """Acceptance (issue 17): φ ~ Normal(40°, 5°) on both joints, N = 200, seed 2026: the
     PoF of the engine's strength reduction per realisation is within 2 percentage points of
     eq. 51 over the same realisations, and each factor of safety within 2 % of eq. 51
-    (VALIDATION.md 2.3). About 40-80 s per realisation on one core."""
+    (docs/validation.md). About 40-80 s per realisation on one core."""
     doc = run_sweep(SCENE, SweepSpec(n, SEED, 40, 5), tmp_path, workers=2)
     assert doc["dda"]["n"] == n
     assert abs(doc["pof_difference"]) <= 0.02

@@ -162,7 +162,7 @@ def test_water_scene_errors_name_the_field() -> None:
         "water.joint_pressures[0].joint_material"]
 
 
-#: VALIDATION.md 2.2: the wedge's weight, normal reactions (N) and face areas (m²)
+#: docs/validation.md: the wedge's weight, normal reactions (N) and face areas (m²)
 WEDGE_W, WEDGE_NA, WEDGE_NB = 7_277_374.0, 4_828_308.0, 4_341_508.0
 WEDGE_AREAS = (97.5733, 91.2474)
 N1 = np.array([0.719846, -0.262003, 0.642788])

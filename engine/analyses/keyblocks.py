@@ -129,16 +129,19 @@ def mode_and_factor(planes: list[Plane], weight: float, r: np.ndarray
 def key_blocks(polys: list[Polyhedron], density: np.ndarray, gravity: np.ndarray,
                exposed: set[int], strength: dict[int, tuple[float, float]],
                default: tuple[float, float], skip: set[int] = frozenset(),
-               free: set[int] = frozenset()) -> list[KeyBlock]:
+               free: set[int] = frozenset(), fixed: set[int] = frozenset()
+               ) -> list[KeyBlock]:
     """The key-block table of every block with a face tagged in `exposed` (an excavation's
-    surface), except the blocks in `skip` (the excavated ones). Faces tagged in `exposed`
-    or `free` (the domain's outer surface, other openings already dug) touch nothing."""
+    surface), except the blocks in `skip` (the excavated ones) and the `fixed` ones (the
+    rock mass that continues beyond the model: never a key block, whatever its faces).
+    Faces tagged in `exposed` or `free` (the domain's outer surface, other openings already
+    dug) touch nothing."""
     free_tags = set(exposed) | set(free)
     g = np.asarray(gravity, float)
     r = g / np.linalg.norm(g)
     out = []
     for b, poly in enumerate(polys):
-        if b in skip or not np.isin(poly.face_tags, list(exposed)).any():
+        if b in skip or b in fixed or not np.isin(poly.face_tags, list(exposed)).any():
             continue
         planes = contact_planes(poly, free_tags, strength, default)
         weight = float(density[b] * poly.volume * np.linalg.norm(g))
@@ -148,3 +151,45 @@ def key_blocks(polys: list[Polyhedron], density: np.ndarray, gravity: np.ndarray
         mode, tags, fs = mode_and_factor(planes, weight, r)
         out.append(KeyBlock(b, True, mode, tags, fs, weight))
     return out
+
+
+@dataclass(frozen=True)
+class Motion:
+    """What a recorded run did to a block after its release: `verdict` ("stayed", "moved,
+    then stopped" or "still moving at the end"), its displacement since the release (m),
+    its speed at the end and its peak speed (m/s), and the simulated time watched (s)."""
+
+    verdict: str
+    displacement: float
+    speed: float
+    peak_speed: float
+    watched: float
+
+
+def recorded_motion(times: np.ndarray, displacement: np.ndarray, speed: np.ndarray,
+                    release: float, limit: float, rest_speed: float) -> Motion:
+    """Judge a block by what a recorded run shows from `release` (s) on, as a strength-
+    reduction trial is judged at the end of its window (trials.still_moving): still moving
+    when its speed at the end is above `rest_speed`, not decayed to half its peak and not
+    slowing over the window's last tenth; else it stopped, having moved (more than `limit`
+    m since the release) or stayed. `displacement (K, 3)` and `speed (K,)` are per record."""
+    from engine.analyses.trials import LATE_FRACTION, still_moving
+
+    t = np.asarray(times, float)
+    after = np.flatnonzero(t >= release - 1e-12)
+    if len(after) == 0:
+        return Motion("stayed", 0.0, 0.0, 0.0, 0.0)
+    k0 = int(after[0])
+    d = float(np.linalg.norm(np.asarray(displacement[-1]) - np.asarray(displacement[k0])))
+    v = np.asarray(speed, float)[k0:]
+    window = float(t[-1] - t[k0])
+    late_k = int(np.searchsorted(t[k0:], t[-1] - LATE_FRACTION * window)) if window > 0 else 0
+    late = float(v[min(late_k, len(v) - 1)]) if window > 0 and late_k < len(v) - 1 else None
+    end, peak = float(v[-1]), float(v.max())
+    if still_moving(end, peak, late, rest_speed):
+        verdict = "still moving at the end"
+    elif d > limit:
+        verdict = "moved, then stopped"
+    else:
+        verdict = "stayed"
+    return Motion(verdict, d, end, peak, window)

@@ -94,9 +94,15 @@ def _vs(a: float, b: float) -> str:
 
 
 def _az(azimuth: float) -> str:
-    """An azimuth as geologists write it: 090°, or 172.59° when it is not whole."""
-    a = azimuth % 360.0
+    """An azimuth as geologists write it: 090°, or 172.59° when it is not whole; in
+    [0, 360) after rounding (359.999° is 000°, not 360.00°)."""
+    a = round(azimuth % 360.0, 2) % 360.0
     return f"{a:03.0f}°" if abs(a - round(a)) < 1e-9 else f"{a:06.2f}°"
+
+
+def _deg(angle: float) -> str:
+    """An angle to two decimals, no negative zero (a plunge of -1e-12° is 0.00°)."""
+    return f"{round(angle, 2) + 0.0:.2f}"
 
 
 def _off(what: str, azimuth: float, reference: str, ref_azimuth: float, off: float,
@@ -253,7 +259,7 @@ def _planar(s: JointSet, slope: SlopeFace, limit: float) -> PlanarSliding:
     off = angle_between(s.dip_direction, slope.dip_direction)
     face = apparent_dip(slope.dip, slope.dip_direction, s.dip_direction)
     within = abs(off) <= limit + EPS_DEG
-    daylight = (f"dip {s.dip:g}° {_vs(s.dip, face)} the face's apparent dip {face:.2f}° "
+    daylight = (f"dip {s.dip:g}° {_vs(s.dip, face)} the face's apparent dip {_deg(face)}° "
                 f"along {_az(s.dip_direction)}" if abs(off) < 90 else
                 _away("the plane dips", off))
     conds = [
@@ -283,8 +289,8 @@ def _wedge(a: JointSet, b: JointSet, slope: SlopeFace) -> WedgeSliding:
     off = angle_between(trend, slope.dip_direction)
     face = apparent_dip(slope.dip, slope.dip_direction, trend)
     out = abs(off) < 90 - EPS_DEG
-    daylight = (f"plunge {plunge:.2f}° {_vs(plunge, face)} the face's apparent dip "
-                f"{face:.2f}° along {_az(trend)}" if abs(off) < 90 else
+    daylight = (f"plunge {_deg(plunge)}° {_vs(plunge, face)} the face's apparent dip "
+                f"{_deg(face)}° along {_az(trend)}" if abs(off) < 90 else
                 _away("the intersection plunges", off))
     where = ("the intersection is horizontal" if plunge <= EPS_DEG else
              f"intersection trend {_az(trend)} is {abs(off):.2f}° from the face's dip "
@@ -294,7 +300,7 @@ def _wedge(a: JointSet, b: JointSet, slope: SlopeFace) -> WedgeSliding:
         Condition("plunges out of the face", out and plunge > EPS_DEG, where),
         Condition("daylights", abs(off) < 90 and plunge < face - EPS_DEG, daylight),
         Condition("steeper than friction", plunge > phi + EPS_DEG,
-                  f"plunge {plunge:.2f}° {_vs(plunge, phi)} φ {phi:g}°"),
+                  f"plunge {_deg(plunge)}° {_vs(plunge, phi)} φ {phi:g}°"),
     ]
     ok = all(c.passed for c in conds)
     on = None
@@ -342,7 +348,7 @@ def _direct(a: JointSet, b: JointSet, others: list[JointSet], slope: SlopeFace,
                   _off("intersection trend", trend, "the direction into the slope", into,
                        off, limit, within)),
         Condition("steep enough", plunge >= steep - EPS_DEG,
-                  f"plunge {plunge:.2f}° {_vs(plunge, steep)} 90° − slope dip {slope.dip:g}° "
+                  f"plunge {_deg(plunge)}° {_vs(plunge, steep)} 90° − slope dip {slope.dip:g}° "
                   f"= {steep:g}°"),
         Condition("base plane", bool(bases),
                   ("base planes " + ", ".join(base_names)) if bases else

@@ -3,7 +3,7 @@
 Realisations are drawn from a seed with numpy's PCG64 (`numpy.random.default_rng`), so a
 sweep is reproducible and realisation `k` is the same whether 10 or 200 are drawn. The
 analytic factor of safety of a wedge on two planes (friction only) is the vector form of
-the paper's eq. 51, `F = K tan φ / tan ψ_i` (VALIDATION.md case 2.1), with one φ per plane
+the paper's eq. 51, `F = K tan φ / tan ψ_i` (docs/validation.md), with one φ per plane
 allowed. :func:`aggregate` turns factors of safety into the probability of failure
 (fraction with F < 1, with a 95 % Wilson interval), a histogram, the empirical CDF and the
 sensitivity of F to each sampled parameter (Spearman rank correlation).

@@ -283,12 +283,20 @@ def run_trial(model: Model, value: float, start: Settled) -> tuple[TrialRun, Set
     return _at_end(verdict, w.speed(sim.state)[0], peak, late_speed, start), None
 
 
+def still_moving(speed: float, peak: float, late: float | None, rest_speed: float) -> bool:
+    """Whether a block at the end of a run is still moving (the trials' rule at the end of
+    their window, and key blocks' judgement of a recorded run): faster than `rest_speed`,
+    at least DECAY_RATIO of its `peak` speed, and not slower than it was LATE_FRACTION of
+    the window before the end (`late`; None: not known)."""
+    slowing = late is not None and speed < late
+    return speed > rest_speed and speed >= DECAY_RATIO * peak and not slowing
+
+
 def _at_end(verdict: Callable[[bool, str], TrialRun], speed: float, peak: float,
             late: float | None, start: Settled) -> TrialRun:
     """The verdict of a trial that reached the end of its window without a certain one
     (`late`: the speed LATE_FRACTION of the window before its end)."""
-    slowing = late is not None and speed < late
-    if speed > start.rest_speed and speed >= DECAY_RATIO * peak and not slowing:
+    if still_moving(speed, peak, late, start.rest_speed):
         return verdict(True, f"still moving at the end ({speed:.3g} m/s, peak "
                              f"{peak:.3g} m/s): the velocity does not decay")
     return verdict(False, f"moved less than the limit {start.limit:.4g} m and its speed "

@@ -1,4 +1,4 @@
-"""Shi's block terms of a step (THEORY.md): inertia of the constant-acceleration scheme,
+"""Shi's block terms of a step (docs/theory.md): inertia of the constant-acceleration scheme,
 elasticity, initial stress, gravity and ground motion, point loads, fixed points, rock bolts
 and water, on the
 blocks' own unknowns; and the energy the implicit block springs dissipate in a step."""

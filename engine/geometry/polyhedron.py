@@ -26,7 +26,7 @@ FACE_TAG_INTERNAL = -2  #: fictitious face inside a block (between convex pieces
 def dip_normal(dip_deg: float, dip_direction_deg: float) -> np.ndarray:
     """Upward unit normal `(3,)` of a plane given by dip / dip direction in degrees.
 
-    x = East, y = North, z = Up; dip direction clockwise from North (THEORY.md).
+    x = East, y = North, z = Up; dip direction clockwise from North (docs/theory.md).
     """
     d, a = np.radians(dip_deg), np.radians(dip_direction_deg)
     return np.array([np.sin(d) * np.sin(a), np.sin(d) * np.cos(a), np.cos(d)])

@@ -1,4 +1,4 @@
-"""The displacement matrix T(x) of a block (THEORY.md, P11): how a point of a block moves
+"""The displacement matrix T(x) of a block (docs/theory.md, P11): how a point of a block moves
 for the block's 12 unknowns (translation, rotation, strain about its centroid)."""
 
 from __future__ import annotations

@@ -8,7 +8,7 @@ to the bolt) grows by `k_s` times the ends' relative transverse displacement, ca
 shear capacity. A bolt whose ends have moved apart by more than its rupture displacement
 since installation breaks and stops acting.
 
-In a step the bolt is Shi's point spring between its two ends (THEORY.md "Fixed point",
+In a step the bolt is Shi's point spring between its two ends (docs/theory.md "Fixed point",
 with the two-point coupling of a contact spring, paper eqs. 24 and 29):
 `P = k_a e eᵀ + k_s (I − e eᵀ)` along the current axis `e`, stiffness `Tᵀ P T` on the
 blocks' matrices, and the force at the step's start (pretension included) as point loads

@@ -326,8 +326,12 @@ def plot_snapshot(result: Result | PathLike, step: int | None, path: PathLike, *
         faces = [("0.7" if fixed[b] else palette[b]) for b in colours]
         mappable = None
     else:  # the colour bar spans the displacements shown (max of the free blocks' faces)
-        vmax = float(vals.max()) if len(vals) and vals.max() > 0 else 1.0
-        mappable = ScalarMappable(norm=Normalize(vmin=0.0, vmax=vmax), cmap="viridis")
+        top = float(vals.max()) if len(vals) and vals.max() > 0 else 1.0
+        # the colour bar in the unit of its largest value (m, mm or µm: no 1e-6 offset)
+        unit, scale = next((u, f) for u, f in (("m", 1.0), ("mm", 1e3), ("µm", 1e6))
+                           if top * f >= 1.0 or u == "µm")
+        vals = vals * scale
+        mappable = ScalarMappable(norm=Normalize(vmin=0.0, vmax=top * scale), cmap="viridis")
         faces = [("0.7" if fixed[b] else mappable.to_rgba(v))
                  for b, v in zip(colours, vals, strict=True)]
     coll = Poly3DCollection(polys, facecolors=faces, edgecolors="k", linewidths=0.3)
@@ -349,14 +353,57 @@ def plot_snapshot(result: Result | PathLike, step: int | None, path: PathLike, *
     ax.set_zlabel("z up (m)")
     ax.set_title(_title(result, label))
     free = np.array([b for b in np.flatnonzero(~fixed) if b not in gone], dtype=np.int64)
-    if len(free) <= MAX_LABELS:  # block names at their highest vertex
-        for b in free:
+    labels = []
+    if len(free) <= MAX_LABELS:  # block names at their highest vertex, the largest first
+        for b in sorted(free, key=lambda b: -float(np.ptp(xs[b], axis=0).prod())):
             top = xs[b][np.argmax(xs[b][:, 2])]
-            ax.text(*top, f" {result.block_names[b] or b}", fontsize="small", zorder=10)
+            labels.append(ax.text(*top, f" {result.block_names[b] or b}", fontsize="small",
+                                  zorder=10))
     if mappable is not None:
         fig.colorbar(mappable, ax=ax, shrink=0.6,
-                     label=f"displacement (m), 0 to {mappable.norm.vmax:.3g} m (fixed: grey)")
+                     label=f"displacement ({unit}), 0 to {mappable.norm.vmax:.3g} {unit} "
+                           "(fixed: grey)")
+    declutter(fig, ax, labels)
     return _save(fig, path)
+
+
+def _tick_boxes(axis: Any, renderer: Any) -> list[Any]:
+    """The display boxes of an axis's tick labels as last drawn (the ticks in its view;
+    get_ticklabels would move a 3-D axis's labels back to their 2-D places first)."""
+    lo, hi = sorted(axis.get_view_interval())
+    return [t.label1.get_window_extent(renderer) for t in axis.get_major_ticks()
+            if lo <= t.get_loc() <= hi and t.label1.get_visible() and t.label1.get_text()]
+
+
+def _overlapping(boxes: list[Any]) -> bool:
+    """Whether any two of the display boxes overlap."""
+    return any(a.overlaps(b) for k, a in enumerate(boxes) for b in boxes[k + 1:])
+
+
+def declutter(fig: Figure, ax: Any, labels: list[Any]) -> None:
+    """No text over another on a 3-D snapshot: each axis with fewer ticks until its tick
+    labels stand apart (a short axis of a flat scene crowded them), then the block names
+    kept in their order (the largest blocks first), each left out that would cover one
+    already kept."""
+    from matplotlib.ticker import MaxNLocator
+
+    FigureCanvasAgg(fig)
+    renderer = fig.canvas.get_renderer()
+    crowded = [ax.xaxis, ax.yaxis, ax.zaxis]
+    for bins in (6, 4, 3, 2, 1):  # a draw per round (a large scene draws slowly)
+        for axis in crowded:
+            axis.set_major_locator(MaxNLocator(nbins=bins))
+        fig.canvas.draw()
+        crowded = [a for a in crowded if _overlapping(_tick_boxes(a, renderer))]
+        if not crowded:
+            break
+    kept: list[Any] = []
+    for text in labels:
+        box = text.get_window_extent(renderer)
+        if any(box.overlaps(k) for k in kept):
+            text.remove()
+        else:
+            kept.append(box)
 
 
 def snapshot_steps(result: Result, times: list[float] | None = None,

@@ -1,6 +1,6 @@
 """DDA time stepping: the orchestrator of a run.
 
-A step is the paper's pipeline (THEORY.md "One step"): find contacts → the contact solution
+A step is the paper's pipeline (docs/theory.md "One step"): find contacts → the contact solution
 (the open-close iteration of Tables 1 and 2, or the complementarity solve) → checks
 (displacement limit, penetration) → wake sleeping blocks whose loads changed → advance
 (exact rotation) → settle rings and rebounds → put quiet blocks to sleep → energy watchdog →

@@ -7,6 +7,7 @@ from __future__ import annotations
 import dataclasses
 import json
 import os
+import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -163,6 +164,7 @@ def run_stages(full: Model, stages: Sequence[Stage], recorder: Recorder | None =
     stage's end). With `checkpoints` (a folder) the state at each stage's end is saved
     there as `stage-<k>.npz` (k from 1). The summary carries `stages`, one
     :class:`StageRecord` each (as dicts)."""
+    started = time.perf_counter()  # the summary's wall time is the whole run's
     state, ledger = (None, Ledger()) if resume is None else resume
     first = 0 if resume is None else ledger.stage + 1
     front = None if recorder is None else FullFrames(recorder, full)
@@ -212,6 +214,9 @@ def run_stages(full: Model, stages: Sequence[Stage], recorder: Recorder | None =
         for r in records]
     result.summary["removed_energy"] = state.energies.get("removed_energy", 0.0)
     result.summary["blocks"] = _full_blocks(full, ledger, result.summary["blocks"], gone)
+    wall = time.perf_counter() - started
+    result.summary["wall_time"] = wall  # every stage's, not the last one's
+    result = dataclasses.replace(result, wall_time=wall)
     if front is not None:
         front.close(result.status, result.message, result.summary)
     return result

@@ -1,4 +1,4 @@
-"""Time-step control (THEORY.md "One step", 3): the Δt and displacement limits of a step's
+"""Time-step control (docs/theory.md "One step", 3): the Δt and displacement limits of a step's
 attempts, the checks of a converged step (displacement limit, penetration), the cut of Δt
 when an attempt fails, and its growth after easy steps."""
 

@@ -21,12 +21,10 @@ from typing import Any
 
 from service import readable as rd
 from service.api.pages import VERSION, _bar, _page, job_links
-from service.documents import MOVED_THRESHOLD, fos_bracket, movement
+from service.documents import AT_REST_SPEED, MOVED_THRESHOLD, fos_bracket, movement
 from service.jobs.processes import PROCESSES
 from service.jobs.store import JobRecord
 
-#: a block whose centroid moves slower than this (m/s) at the end of a run has come to rest
-AT_REST_SPEED = 1e-3
 #: rows of the moving blocks' table (the rest are counted)
 MAX_ROWS = 200
 #: the raw scene shown in the appendix up to this many characters
@@ -421,7 +419,8 @@ def _result_section(summary: dict[str, Any], meta: dict[str, Any]) -> str:
         "max_penetration": rd.length(summary.get("max_penetration") or 0.0),
         "time_step_cuts": sum((summary.get("time_step_cuts") or {}).values()),
         "relaxed_contacts": summary.get("relaxed_contacts"),
-        "reseat_dissipation": f"{rd.number(summary.get('reseat_dissipation') or 0.0)} J"}
+        "reseat_dissipation": rd.energy(summary.get("reseat_dissipation") or 0.0,
+                                        meta.get("energy_scale"))}
     rows = [[_LABELS[k], v] for k, v in shown.items() if v is not None]
     if isinstance(pen, dict) and "normal" in pen:
         rows.append(["contact penalty", f"{pen['normal']:.3g} N/m normal, "

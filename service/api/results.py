@@ -247,6 +247,12 @@ def result_meta(r: Any) -> dict[str, Any]:
                             "n_steps": r.n_steps}
     if r.n_steps:
         meta["last"] = {"time": float(r.times[-1]), "step": int(r.steps[-1])}
+        # the run's largest energy (J): an energy round-off against it reads as 0
+        import numpy as np
+
+        energies = [np.abs(np.asarray(v, float)) for v in r.energies().values()]
+        meta["energy_scale"] = max((float(np.nanmax(v)) for v in energies if v.size),
+                                   default=0.0)
     return meta
 
 

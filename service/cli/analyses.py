@@ -11,15 +11,16 @@ from typing import Any
 
 from schemas.convert import build_model
 from schemas.errors import SceneError
+from schemas.scene import read_json
 from service.cli.common import (
     EXIT_IO,
     EXIT_OK,
     EXIT_SCENE,
-    note_compilation,
     one_model,
     print_json,
 )
 from service.cli.progress import Progress
+from service.cli.warmup import note_compilation
 from service.documents import kinematic_result, kinematics_document, kinematics_text
 
 
@@ -81,8 +82,10 @@ def cmd_sweep(args: argparse.Namespace) -> int:
     a factor of safety each (engine strength reduction or eq. 51), probability of failure."""
     from service.sweep import run_sweep, spec_of_scene
 
-    scene = json.loads(Path(args.scene).read_text(encoding="utf-8"))
-    built = build_model(Path(args.scene))  # the scene must be valid before any realisation
+    # the scene must be valid before any realisation: a missing file, bad JSON or a bad
+    # scene exits 2 naming it (SceneError)
+    built = build_model(Path(args.scene))
+    scene = read_json(args.scene)
     one_model(built, "a sweep")
     section = _sweep_options(args, scene)
     if section is None:
@@ -97,10 +100,10 @@ def cmd_sweep(args: argparse.Namespace) -> int:
 
     if args.server is not None:
         return _sweep_on_server(args, scene, spec)
-    if spec.mode == "dda" and not args.quiet:
-        note_compilation()
+    quiet = args.quiet or args.json
+    compiling = spec.mode == "dda" and note_compilation(not quiet)
     bar = Progress(f"sweep {Path(args.scene).stem}", spec.n, unit="realisation",
-                   enabled=not args.quiet)
+                   enabled=not quiet, compiling=compiling)
 
     def note(done: int, n: int, now: int) -> None:
         bar.update(done, f"{done:,} of {n:,} realisations", total=n, base=done - now)
@@ -126,7 +129,7 @@ def _sweep_on_server(args: argparse.Namespace, scene: dict[str, Any], spec: Any)
     scene = dict(scene, sweep=spec.scene_sweep())
     headers = {"X-API-Key": args.api_key} if args.api_key else {}
     bar = Progress(f"sweep {Path(args.scene).stem} on {args.server}", spec.n,
-                   unit="realisation", enabled=not args.quiet)
+                   unit="realisation", enabled=not (args.quiet or args.json))
 
     def note(done: int, n: int, statuses: list[dict[str, Any]]) -> None:
         states = ", ".join(s["status"] for s in statuses)

@@ -1,5 +1,5 @@
 """What the `polydda` commands share: exit codes, JSON output, loading a scene with its
-warnings on stderr, the note about compiling the kernels."""
+warnings on stderr, opening a result file."""
 
 from __future__ import annotations
 
@@ -9,6 +9,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 if TYPE_CHECKING:
+    from engine.results.reader import Result
     from schemas.convert import BuildResult
     from schemas.errors import SceneError
 
@@ -59,18 +60,48 @@ def one_model(built: BuildResult, analysis: str) -> None:
     refuse_stages(built, analysis)
 
 
-def note_compilation() -> None:
-    """Say why the first step of the first run on a machine takes a while."""
-    from engine import kernels_cached
-
-    if not kernels_cached():
-        print("compiling the engine's numerical kernels: the first run on this machine "
-              "takes about a minute longer (they are cached afterwards)", file=sys.stderr)
-
-
 def listed(values: list[str] | None) -> list[str] | None:
     """Values of a repeatable option that also takes comma-separated lists."""
     if values is None:
         return None
     return [v.strip() for value in values for v in value.split(",") if v.strip()]
 
+
+#: the first bytes of every HDF5 file (at offset 0 for the files the engine writes)
+_HDF5_SIGNATURE = b"\x89HDF\r\n\x1a\n"
+
+
+def open_result_file(command: str, path: str) -> Result | int:
+    """The result file at `path`, open; or, said in one line on stderr naming the file, the
+    exit code: 2 when it is not there or not a result (a scene, another HDF5 file), like any
+    other bad input; 1 when it is there but cannot be read."""
+    from engine.results.reader import open_result
+
+    file = Path(path)
+    if not file.is_file():
+        print(f"polydda {command}: no such result file: {path}", file=sys.stderr)
+        return EXIT_SCENE
+    try:
+        with file.open("rb") as f:
+            head = f.read(8)
+    except OSError as exc:
+        print(f"polydda {command}: cannot read {path}: {exc.strerror or exc}", file=sys.stderr)
+        return EXIT_IO
+    if head != _HDF5_SIGNATURE:
+        if head.lstrip()[:1] in (b"{", b"["):
+            print(f"polydda {command}: {path} is a scene, not a result: run it first "
+                  f"(polydda run {path} --out RESULT.h5), then polydda {command} RESULT.h5",
+                  file=sys.stderr)
+        else:
+            print(f"polydda {command}: {path} is not a PolyDDA result (the HDF5 file that "
+                  "polydda run --out writes)", file=sys.stderr)
+        return EXIT_SCENE
+    try:
+        return open_result(path)
+    except (KeyError, ValueError):
+        print(f"polydda {command}: {path} is an HDF5 file but not a PolyDDA result",
+              file=sys.stderr)
+        return EXIT_SCENE
+    except OSError as exc:
+        print(f"polydda {command}: cannot read {path}: {exc}", file=sys.stderr)
+        return EXIT_IO

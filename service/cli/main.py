@@ -16,8 +16,10 @@ from __future__ import annotations
 import argparse
 import importlib
 import os
+import shutil
 import sys
 from collections.abc import Callable, Iterator, Sequence
+from typing import Any
 
 from service.cli.common import EXIT_OK, EXIT_SCENE, scene_failed
 from service.jobs.worker import add_arguments as worker_options
@@ -56,6 +58,17 @@ def _command(module: str, name: str) -> Callable[[argparse.Namespace], int]:
     return command
 
 
+class _CommandList(argparse.HelpFormatter):
+    """`polydda --help`: each command and its description on one line."""
+
+    def __init__(self, prog: str) -> None:
+        super().__init__(prog, max_help_position=16, width=max(80, min(
+            120, shutil.get_terminal_size((80, 24)).columns)))
+        # argparse measures the commands at their parent's indent, two short of their own:
+        # `kinematics` (10 characters, indented 4) would go on a line of its own
+        self._action_max_length = 14
+
+
 class _Parser(argparse.ArgumentParser):
     """ArgumentParser whose usage errors print one line and exit with code 2."""
 
@@ -68,10 +81,21 @@ class _Parser(argparse.ArgumentParser):
 def build_parser() -> argparse.ArgumentParser:
     """The argparse parser with one subparser per command (`func` set to its cmd_*)."""
     parser = _Parser(prog="polydda",
-                     description="3-D Discontinuous Deformation Analysis of rock blocks")
+                     description="3-D Discontinuous Deformation Analysis of rock blocks",
+                     formatter_class=_CommandList)
     parser.add_argument("--version", action="version", version=f"polydda {_version()}")
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND",
                                 parser_class=_Parser)
+
+    add_parser = sub.add_parser
+
+    def described(name: str, **kwargs: Any) -> argparse.ArgumentParser:
+        """A command's parser; its one-line help heads `polydda COMMAND --help` too when it
+        has no longer description."""
+        kwargs.setdefault("description", kwargs.get("help"))
+        return add_parser(name, **kwargs)
+
+    sub.add_parser = described  # type: ignore[method-assign]
 
     p = sub.add_parser("blocks", help="list the blocks of a scene (after cutting)")
     p.add_argument("scene", help="scene JSON file")
@@ -137,8 +161,12 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--plot", metavar="OUT.png", help="write the stereonet to this PNG file")
     p.set_defaults(func=_command("analyses", "cmd_kinematics"))
 
-    p = sub.add_parser("keyblocks", help="key blocks of the scene's excavations (block "
-                       "theory) and what the DDA run did to them")
+    p = sub.add_parser("keyblocks", help="key blocks of the excavations, what a run did to them",
+                       description="key blocks of the scene's excavations (block theory: "
+                                   "removable, mode, factor of safety; fixed blocks are the "
+                                   "rock mass beyond the model, never key blocks) and, with "
+                                   "--result, what the DDA run did to each after its "
+                                   "excavation")
     p.add_argument("scene", help="scene JSON file with excavations")
     p.add_argument("--result", metavar="RESULT.h5", help="the scene's run: each block's "
                    "final displacement and the DDA's verdict")
@@ -146,7 +174,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.set_defaults(func=_command("keyblocks", "cmd_keyblocks"))
 
     p = sub.add_parser(
-        "stereonet", help="measured orientations: pole density, sets, Fisher mean and κ",
+        "stereonet", help="measured orientations: pole density, sets, Fisher κ",
         description="read dip / dip direction measurements (CSV), contour their poles' "
                     "density on an equal-area stereonet, pick the sets (k-means on the "
                     "sphere) and fit each one's Fisher mean, κ and 95 % cone; with --scene "
@@ -276,6 +304,18 @@ def build_parser() -> argparse.ArgumentParser:
                         "server's Retry-After (same Idempotency-Key: never two jobs; "
                         "default 5)")
     p.set_defaults(func=_command("remote", "cmd_submit"))
+
+    p = sub.add_parser("warm-up", help="compile the engine's kernels ahead, on every core",
+                       description="compile the engine's numba kernels into their cache "
+                                   "before the first run (a few steps of the paper's wedge "
+                                   "in parallel processes, each compiling its share), so that "
+                                   "the first `polydda run` starts at once; nothing to do "
+                                   "when they are cached")
+    p.add_argument("--workers", type=int, metavar="N",
+                   help="processes at once (default: the cores)")
+    p.add_argument("--json", action="store_true",
+                   help="print what each process compiled and the seconds it took")
+    p.set_defaults(func=_command("warmup", "cmd_warm_up"))
 
     p = sub.add_parser("schema", help="print the JSON Schema of the scene format")
     p.set_defaults(func=_command("scenes", "cmd_schema"))

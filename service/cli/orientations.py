@@ -104,7 +104,12 @@ def cmd_stereonet(args: argparse.Namespace) -> int:
     sets, labels = fit_sets(dips, ddirs, args.sets, seed=args.seed, names=names)
     scene = None
     if args.scene is not None:
-        scene = json.loads(Path(args.scene).read_text(encoding="utf-8"))
+        from schemas.scene import read_json
+
+        scene = read_json(args.scene)
+        if not isinstance(scene, dict):
+            raise SceneError([{"loc": "--scene", "msg": f"{args.scene}: a scene must be a "
+                               "JSON object {...}"}])
     joints, sweep = joints_and_sweep(sets, args.spacing, _domain_centre(scene or {}))
     plot = Path(args.plot) if args.plot else source.with_name(f"{source.stem}_stereonet.png")
     try:

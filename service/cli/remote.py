@@ -27,11 +27,13 @@ def cmd_worker(args: argparse.Namespace) -> int:
 
 def cmd_submit(args: argparse.Namespace) -> int:
     """Submit a scene to a running server; with --wait, follow it to the end."""
+    from schemas.scene import load_scene  # the scene's format, checked here (nothing cut)
     from service.cli.client import ServiceError, Unreachable, print_status, submit
 
     if not Path(args.scene).is_file():
         print(f"polydda submit: no such scene file: {args.scene}", file=sys.stderr)
-        return EXIT_IO
+        return EXIT_SCENE
+    load_scene(Path(args.scene))  # SceneError (exit 2) before anything is sent
     try:
         doc = submit(args.url, args.scene, wait=args.wait, process=args.process,
                      api_key=args.api_key, on_status=print_status, retries=args.retries)

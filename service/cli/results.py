@@ -5,50 +5,8 @@ from __future__ import annotations
 import argparse
 import sys
 from pathlib import Path
-from typing import TYPE_CHECKING
 
-from service.cli.common import EXIT_IO, EXIT_OK, EXIT_SCENE, listed
-
-if TYPE_CHECKING:
-    from engine.results.reader import Result
-
-#: the first bytes of every HDF5 file (at offset 0 for the files the engine writes)
-_HDF5_SIGNATURE = b"\x89HDF\r\n\x1a\n"
-
-
-def open_result_file(command: str, path: str) -> Result | int:
-    """The result file at `path`, open; or, said in one line on stderr, the exit code: 1 when
-    it cannot be read, 2 when it is not a result (a scene, another HDF5 file)."""
-    from engine.results.reader import open_result
-
-    file = Path(path)
-    if not file.is_file():
-        print(f"polydda {command}: no such result file: {path}", file=sys.stderr)
-        return EXIT_IO
-    try:
-        with file.open("rb") as f:
-            head = f.read(8)
-    except OSError as exc:
-        print(f"polydda {command}: cannot read {path}: {exc.strerror or exc}", file=sys.stderr)
-        return EXIT_IO
-    if head != _HDF5_SIGNATURE:
-        if head.lstrip()[:1] in (b"{", b"["):
-            print(f"polydda {command}: {path} is a scene, not a result: run it first "
-                  f"(polydda run {path} --out RESULT.h5), then polydda {command} RESULT.h5",
-                  file=sys.stderr)
-        else:
-            print(f"polydda {command}: {path} is not a PolyDDA result (the HDF5 file that "
-                  "polydda run --out writes)", file=sys.stderr)
-        return EXIT_SCENE
-    try:
-        return open_result(path)
-    except (KeyError, ValueError):
-        print(f"polydda {command}: {path} is an HDF5 file but not a PolyDDA result",
-              file=sys.stderr)
-        return EXIT_SCENE
-    except OSError as exc:
-        print(f"polydda {command}: cannot read {path}: {exc}", file=sys.stderr)
-        return EXIT_IO
+from service.cli.common import EXIT_IO, EXIT_OK, EXIT_SCENE, listed, open_result_file
 
 
 def cmd_plot(args: argparse.Namespace) -> int:

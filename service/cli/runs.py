@@ -4,8 +4,9 @@ and `seismic` (critical seismic coefficient), with their progress lines on stder
 from __future__ import annotations
 
 import argparse
+import math
 import sys
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -28,19 +29,21 @@ from service.cli.common import (
     EXIT_RUN,
     EXIT_SCENE,
     load_scene,
-    note_compilation,
     one_model,
     print_json,
 )
 from service.cli.progress import Progress, bisection_total
+from service.cli.warmup import note_compilation
 from service.documents import (
     fos_bracket,
     fos_controls,
     fos_document,
     movement,
     run_summary,
+    run_verdict,
     seismic_controls,
     seismic_document,
+    verdict_line,
     write_json_atomic,
 )
 
@@ -71,10 +74,10 @@ def cmd_run(args: argparse.Namespace) -> int:
         print(f"cannot write {out}: {exc}", file=sys.stderr)
         return EXIT_IO
     show = not (args.quiet or args.json)
-    if show:
-        note_compilation()
+    compiling = note_compilation(show)
     duration = built.stages[-1].end_time if built.stages else built.model.controls.duration
-    bar = Progress(f"run {Path(args.scene).stem}", duration, unit="s", enabled=show)
+    bar = Progress(f"run {Path(args.scene).stem}", duration, unit="s", enabled=show,
+                   compiling=compiling)
     try:
         res = _run_built(args, built, writer, _run_progress(bar) if show else None,
                          scene_text, out)
@@ -93,7 +96,7 @@ def cmd_run(args: argparse.Namespace) -> int:
         print_json(summary | {"result": str(out)})
         return EXIT_OK if res.status == STATUS_COMPLETED else EXIT_RUN
     fixed = [b.fixed for b in built.model.blocks]
-    print("\n".join(run_text(summary, fixed, str(out))))
+    print("\n".join(run_text(summary, fixed, str(out), shown=built.warnings)))
     return EXIT_OK if res.status == STATUS_COMPLETED else EXIT_RUN
 
 
@@ -107,14 +110,21 @@ def _run_built(args: argparse.Namespace, built: BuildResult, writer: ResultWrite
     resume = None
     if args.resume_from:
         if not built.stages:
-            print("--resume-from: the scene has no stages to resume", file=sys.stderr)
+            print(f"--resume-from: {args.scene} has no stages to resume", file=sys.stderr)
             return None
-        try:
-            resume = load_checkpoint(args.resume_from)
-        except (OSError, ValueError, KeyError) as exc:
-            print(f"--resume-from: cannot read {args.resume_from} ({exc})", file=sys.stderr)
-            return None
-        why = checkpoint_fits(built.model, built.stages, resume[1])
+        why = checkpoint_problem(args.resume_from)
+        if not why:
+            try:
+                resume = load_checkpoint(args.resume_from)
+            except (OSError, ValueError, KeyError, TypeError) as exc:
+                why = f"{args.resume_from} is not a stage checkpoint of polydda run ({exc})"
+        if not why:
+            why = checkpoint_fits(built.model, built.stages, resume[1])
+        if not why and resume[1].stage == len(built.stages) - 1:
+            why = (f"{args.resume_from} is the end of the last stage "
+                   f"('{built.stages[-1].name}', {len(built.stages)} of {len(built.stages)}): "
+                   "no stage is left to run, and the run that wrote it is complete; resume "
+                   "from an earlier stage's checkpoint, or add a stage after it")
         if why:
             print(f"--resume-from: {why}", file=sys.stderr)
             return None
@@ -123,9 +133,33 @@ def _run_built(args: argparse.Namespace, built: BuildResult, writer: ResultWrite
                      scene_json=scene_text, checkpoints=checkpoints, resume=resume)
 
 
-def run_text(summary: dict[str, Any], fixed: list[bool], result: str) -> list[str]:
+def checkpoint_problem(path: str) -> str:
+    """Why the file given to --resume-from is no stage checkpoint ('' when it may be one),
+    naming that file: missing, not the .npz of a state, or without the ledger that
+    `polydda run` writes beside it (`<path>.stage.json`)."""
+    file = Path(path)
+    if not file.is_file():
+        return f"no such checkpoint: {path}"
+    try:
+        with file.open("rb") as f:
+            head = f.read(4)
+    except OSError as exc:
+        return f"cannot read {path}: {exc.strerror or exc}"
+    if head != b"PK\x03\x04":  # an .npz is a zip archive
+        return (f"{path} is not a stage checkpoint (the stage-<k>.npz that polydda run "
+                "writes at each stage's end)")
+    ledger = Path(f"{path}.stage.json")
+    if not ledger.is_file():
+        return (f"{path} has lost its ledger ({ledger.name}, written beside it at the "
+                "stage's end): not a complete stage checkpoint")
+    return ""
+
+
+def run_text(summary: dict[str, Any], fixed: list[bool], result: str,
+             shown: Sequence[str] = ()) -> list[str]:
     """What `polydda run` prints at its end: how the run ended, then the free blocks that
-    moved more than the threshold (largest first, with units), then the warnings."""
+    moved more than the threshold (largest first, with units), then the warnings (but those
+    `shown` already, when the scene was loaded), then the verdict."""
     lines = [f"{summary['status']}: {summary['steps']:,} steps, "
              f"{rd.seconds(summary['simulated_time'])} simulated in "
              f"{rd.duration(summary['wall_time'])}; largest penetration "
@@ -157,7 +191,8 @@ def run_text(summary: dict[str, Any], fixed: list[bool], result: str) -> list[st
     elif m["still"]:
         lines.append(f"the largest displacement of a free block is {rd.length(m['still_max'])} "
                      f"({m['still_max_name']})")
-    lines += [f"warning: {w}" for w in summary.get("warnings", [])]
+    lines += [f"warning: {w}" for w in summary.get("warnings", []) if w not in shown]
+    lines.append(run_verdict(summary, fixed))
     return lines
 
 
@@ -166,10 +201,11 @@ def _trials(args: argparse.Namespace, label: str, what: str, tolerance: float,
     """The progress of a bisection (`what` names the value tried, e.g. `F`): a bar over the
     estimated number of trials and one line per trial with its verdict; says first when
     the kernels still have to compile. Nothing with --quiet."""
-    if not args.quiet:
-        note_compilation()
+    quiet = args.quiet or getattr(args, "json", False)
+    compiling = note_compilation(not quiet)
     total = bisection_total([], tolerance, max_runs, relative_to)
-    bar = Progress(label, total, unit="trial", enabled=not args.quiet, tenths=False)
+    bar = Progress(label, total, unit="trial", enabled=not quiet, tenths=False,
+                   compiling=compiling)
     seen: list[tuple[float, bool]] = []
 
     def note(r: TrialRun) -> None:
@@ -206,17 +242,19 @@ def cmd_fos(args: argparse.Namespace) -> int:
     if args.json:
         print_json(doc)
     else:
-        print("\n".join(fos_text(doc)))
+        print("\n".join(fos_text(doc, shown=built.warnings)))
     return EXIT_OK if result.status == STATUS_COMPLETED else EXIT_RUN
 
 
-def fos_text(doc: dict[str, Any]) -> list[str]:
+def fos_text(doc: dict[str, Any], shown: Sequence[str] = ()) -> list[str]:
     """The factor of safety for people: the value to two decimals, how it was found (trial
-    runs, the last bracket), the critical friction angle of each weakened joint material."""
+    runs, the last bracket), the critical friction angle of each weakened joint material,
+    the warnings not `shown` already, and the verdict."""
     runs = doc.get("runs") or []
     fs = doc.get("factor_of_safety")
     if not isinstance(fs, float):
-        return [f"no factor of safety ({doc.get('status')}): {doc.get('message', '')}"]
+        return [f"no factor of safety ({doc.get('status')}): {doc.get('message', '')}",
+                "Verdict: none — the search found no factor of safety"]
     bracket = fos_bracket(runs)
     how = (f"strength reduction, bisection on tan φ / F over {rd.plural(len(runs), 'trial run')}"
            + (f": holds at F = {bracket[0]:.4g}, fails at {bracket[1]:.4g}" if bracket else ""))
@@ -231,7 +269,8 @@ def fos_text(doc: dict[str, Any]) -> list[str]:
             lines.append(f"critical friction angle of '{name}': {rd.angle(phi)}")
     if doc.get("message"):
         lines.append(doc["message"])
-    lines += [f"warning: {w}" for w in doc.get("warnings", [])]
+    lines += [f"warning: {w}" for w in doc.get("warnings", []) if w not in shown]
+    lines.append(verdict_line(fs, "FS", bound=doc.get("bound")))
     return lines
 
 
@@ -258,8 +297,24 @@ def cmd_seismic(args: argparse.Namespace) -> int:
         if result.message:
             print(result.message)
         for w in doc.get("warnings", []):
-            print(f"warning: {w}")
+            if w not in built.warnings:  # the scene's were said when it was loaded
+                print(f"warning: {w}")
+        print(seismic_verdict(result.critical_coefficient, result.bound))
     return EXIT_OK if result.status == STATUS_COMPLETED else EXIT_RUN
+
+
+def seismic_verdict(kh: float, bound: str | None) -> str:
+    """The last line of `polydda seismic`: the horizontal acceleration (in g) the watched
+    blocks withstand."""
+    if not math.isfinite(kh):
+        return "Verdict: none — the search found no critical seismic coefficient"
+    if bound == "lower":
+        return f"Verdict: holds up to kh {kh:.3f} at least (no trial failed)"
+    if bound == "upper" or kh <= 0:
+        return (f"Verdict: not stable — fails even at kh {kh:.3f} (under its static loads "
+                "alone)" if kh <= 0 else f"Verdict: fails at every kh tried (kh < {kh:.3f})")
+    return (f"Verdict: stable below kh {kh:.3f} — a horizontal acceleration of {kh:.3f} g "
+            "makes the watched blocks fail")
 
 
 def cmd_le(args: argparse.Namespace) -> int:
