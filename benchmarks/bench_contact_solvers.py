@@ -1,10 +1,13 @@
-"""Both contact solvers on the same cases, in one run: speed against accuracy (issue 29).
+"""Every contact solver on the same cases, in one run: speed against accuracy (issues 29
+and 38).
 
 Accuracy: the analytic cases (docs/validation.md) at Δt 1 ms, their error and wall time.
 Speed: the cut rock masses of `benchmarks.pile.rock_mass_model` (10 m cube, three sets,
 φ 30°, asked Δt 1 ms; STEPS steps) and the shared piles (their whole second), each in a
 process of its own: the wall per step and per phase, iterations per step (open-close
-cycles, or Gauss–Seidel sweeps), the complementarity residual, the Δt actually held, the
+cycles, Newton iterations with the conjugate-gradient iterations per Newton iteration and
+the rounds whose caps stayed lagged, or Gauss–Seidel sweeps), the complementarity
+residual, the Δt actually held, the
 blocks asleep, peak RSS and the (extrapolated) wall per simulated second; MuJoCo on the
 same piles in the same run when it is installed.
 Run: `python -m benchmarks.bench_contact_solvers [STEPS]` (default 10); writes
@@ -22,7 +25,7 @@ from pathlib import Path
 
 import numpy as np
 
-SOLVERS = ("open_close", "complementarity")
+SOLVERS = ("open_close", "newton", "complementarity")
 PHASES = ("detection", "assembly", "solve", "open_close", "update")
 #: (name, builder expression, simulated seconds or None: STEPS steps): the speed cases
 CASES = (
@@ -53,7 +56,7 @@ def one(builder: str, solver: str, steps: int, seconds: float | None = None) -> 
     t0 = time.perf_counter()
     sim = Simulation(model)
     setup = time.perf_counter() - t0
-    its, contacts, resid, status, message = [], [], [], "completed", ""
+    its, krylov, contacts, resid, status, message = [], [], [], [], "completed", ""
     sim.state.diagnostics.timings.clear()
     t1 = time.perf_counter()
     while (sim.state.time < seconds - 1e-9 if seconds else sim.state.step < steps):
@@ -66,6 +69,7 @@ def one(builder: str, solver: str, steps: int, seconds: float | None = None) -> 
             status, message = "failed", str(exc)
             break
         its.append(res.iterations)
+        krylov.append(res.linear_iterations)
         if res.residual is not None:
             resid.append(res.residual)
         contacts.append(len(res.contacts))
@@ -78,6 +82,9 @@ def one(builder: str, solver: str, steps: int, seconds: float | None = None) -> 
             "per_step_s": wall / n, "per_sim_second_s": wall / max(sim.state.time, 1e-12),
             "mean_dt": sim.state.time / n, "iterations_mean": float(np.mean(its or [0])),
             "iterations_max": int(np.max(its or [0])),
+            "iterations_median": float(np.median(its or [0])),
+            "krylov_per_iteration": float(np.sum(krylov) / max(np.sum(its), 1)),
+            "lagged_caps": int(sim.state.diagnostics.lagged_caps),
             "residual_max": float(np.max(resid)) if resid else None, "contacts_mean": float(
                 np.mean(contacts or [0])), "asleep_end": asleep, "status": status,
             "message": message[:200], "rss_peak_mb": peak_rss_mb(),
@@ -85,7 +92,8 @@ def one(builder: str, solver: str, steps: int, seconds: float | None = None) -> 
 
 
 def accuracy() -> list[dict]:
-    """The incline (φ 20°, 1 s) and the ten-cube stack (50 steps) under both solvers."""
+    """The incline (φ 20°, 1 s) and the ten-cube stack (50 steps) under every solver
+    (awake: a sleeping stack's contacts are not in the step's result)."""
     from engine.geometry.shapes import box
     from engine.model import AnalysisControls, Block, JointMaterial, Model
     from engine.step.simulation import Simulation, run
@@ -95,7 +103,7 @@ def accuracy() -> list[dict]:
     a = 9.81 * (np.sin(np.radians(30)) - np.cos(np.radians(30)) * np.tan(np.radians(20)))
     for solver in SOLVERS:
         m = incline_model(20.0)
-        m.controls = dataclasses.replace(m.controls, contact_solver=solver)
+        m.controls = dataclasses.replace(m.controls, contact_solver=solver, sleep_velocity=0.0)
         t0 = time.perf_counter()
         r = run(m)
         s = np.array(r.summary["blocks"][1]["displacement"]) @ DOWN_DIP
@@ -106,7 +114,7 @@ def accuracy() -> list[dict]:
         blocks += [Block(box([0, 0, k], [1, 1, k + 1]), f"c{k}") for k in range(10)]
         m = Model(blocks=blocks, joint_materials=[JointMaterial(np.radians(30))],
                   controls=AnalysisControls(duration=1, time_step=1e-3, penalty=1e10,
-                                            contact_solver=solver))
+                                            contact_solver=solver, sleep_velocity=0.0))
         sim = Simulation(m)
         t0 = time.perf_counter()
         for _ in range(50):
@@ -144,7 +152,7 @@ def plot(data: dict, out: Path) -> str:
     import matplotlib.pyplot as plt
 
     fig, (ax1, ax2) = plt.subplots(1, 2, figsize=(11, 4.2))
-    marks = {"open_close": "o", "complementarity": "s", "MuJoCo": "^"}
+    marks = {"open_close": "o", "newton": "D", "complementarity": "s", "MuJoCo": "^"}
     for row in data["accuracy"]:
         ax1.loglog(row["wall_s"], max(row["error"], 1e-16), marks[row["solver"]],
                    label=f"{row['case']}, {row['solver']}")
@@ -161,7 +169,7 @@ def plot(data: dict, out: Path) -> str:
                            marks[solver] + ("-" if kind == "rock mass" else ":"),
                            label=f"{kind}, {solver}")
     ax2.axhline(60.0, color="grey", lw=0.8)
-    ax2.text(40, 70, "issue 29's target: 1 s in 60 s", fontsize=7)
+    ax2.text(40, 70, "issues 29/38's target at ~1,000 blocks: 1 s in 60 s", fontsize=7)
     ax2.set_xlabel("free blocks")
     ax2.set_ylabel("wall per simulated second (s)")
     ax2.set_title("cut rock masses (10 steps) and piles (their second)")
@@ -179,35 +187,41 @@ def _maybe(value: float | None) -> str:
 
 
 def report_part(data: dict, chart: str, trust: dict | None = None) -> str:
-    """REPORT.md's section on the two contact solvers (with the stability map v2 under the
+    """REPORT.md's section on the contact solvers (with the stability map v2 under the
     complementarity solve, `trust`, when it has been run)."""
-    lines = ["## 7. Contact solvers side by side (issue 29)", "",
-             "`python -m benchmarks.bench_contact_solvers 10`: both solvers on the same cases "
-             "in one run (asked Δt 1 ms, each case in its own process: the rock masses 10 "
-             "steps from rest, the piles their whole second, MuJoCo too). Iterations are "
-             "open-close cycles or Gauss–Seidel sweeps; for the complementarity solve the "
-             "`solve` phase is its position stage and `open_close` its velocity (impact) "
-             "stage.", "",
+    lines = ["## 7. Contact solvers side by side (issues 29, 38)", "",
+             "`python -m benchmarks.bench_contact_solvers 10`: every solver on the same "
+             "cases in one run (asked Δt 1 ms, each case in its own process: the rock masses "
+             "10 steps from rest, the piles their whole second, MuJoCo too). Iterations are "
+             "open-close cycles, Newton iterations (with the conjugate-gradient iterations "
+             "per Newton iteration, and the rounds whose friction caps stayed lagged) or "
+             "Gauss–Seidel sweeps; for the complementarity solve the `solve` phase is its "
+             "position stage and `open_close` its velocity (impact) stage; for Newton's "
+             "`solve` is all of it.", "",
              "| case | solver | relative error | wall (s) |", "|---|---|---|---|"]
     lines += [f"| {r['case']} | {r['solver']} | {r['error']:.1e} | {r['wall_s']:.2f} |"
               for r in data["accuracy"]]
     lines += ["", "| case | solver | blocks | s/step | " + " | ".join(PHASES) +
-              " | iterations mean/max | residual (m) | Δt held (s) | s per simulated s | "
-              "peak RSS (MB) | status |", "|---" * (10 + len(PHASES)) + "|"]
+              " | iterations median/mean/max | CG per Newton it. | lagged rounds | "
+              "residual (m) | Δt held (s) | s per simulated s | peak RSS (MB) | status |",
+              "|---" * (12 + len(PHASES)) + "|"]
     for r in data["speed"]:
         if r.get("status") == "error":
             lines.append(f"| {r['case']} | {r['solver']} | error: {r['message'][:80]} |")
         elif r["solver"] == "MuJoCo":
             lines.append(f"| {r['case']} | MuJoCo | {r['blocks']} | "
                          f"{r['wall_s'] / r['steps']:.4f} |" + " |" * len(PHASES) +
-                         f" | | 1e-3 | {r['per_sim_second_s']:.3g} | | |")
+                         f" | | | | 1e-3 | {r['per_sim_second_s']:.3g} | | |")
         else:
+            newton = r["solver"] == "newton"
             lines.append(
                 f"| {r['case']} | {r['solver']} | {r['blocks']} | {r['per_step_s']:.3f} | " +
                 " | ".join(f"{r[f't_{p}']:.3f}" for p in PHASES) +
-                f" | {r['iterations_mean']:.0f}/{r['iterations_max']} | "
-                f"{_maybe(r.get('residual_max'))} | "
-                f"{r['mean_dt']:.2g} | "
+                f" | {r.get('iterations_median', 0):.0f}/{r['iterations_mean']:.0f}/"
+                f"{r['iterations_max']} | "
+                + (f"{r['krylov_per_iteration']:.0f} | {r['lagged_caps']} | " if newton
+                   else " | | ")
+                + f"{_maybe(r.get('residual_max'))} | {r['mean_dt']:.2g} | "
                 f"{r['per_sim_second_s']:.3g} | {r['rss_peak_mb']:.0f} | {r['status']} |")
     if data.get("note"):
         lines += ["", f"Note: {data['note']}."]

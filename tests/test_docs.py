@@ -294,3 +294,14 @@ def test_readme_states_the_measured_first_run() -> None:
     sentence = cold_sentence(json.loads(COLD_RESULT.read_text()))
     for page in (ROOT / "README.md", DOCS / "getting-started.md"):
         assert sentence in " ".join(page.read_text().split()), page.name
+
+
+def test_contact_solver_tables_come_from_their_results() -> None:
+    """docs/contact-solvers.md's measured tables (speed and accuracy of every solver, the
+    toppling train at several Δt, sleeping) are those `python -m benchmarks.docs_tables`
+    makes from the result files the cited benchmarks write."""
+    from benchmarks.docs_tables import PAGE, render
+
+    page = PAGE.read_text()
+    assert render(page) == page, "run: python -m benchmarks.docs_tables"
+    assert "not measured yet" not in page
