@@ -119,22 +119,46 @@ def line_slope(alpha: float, dr0: np.ndarray, dp: np.ndarray, normal: np.ndarray
                stick: np.ndarray) -> tuple[float, float]:
     """The contacts' part of the step potential's slope and curvature along a direction at
     `alpha`: `Σ −F(dr0 + α dp)·dp` and `Σ dpᵀ H dp` (relative displacements `dr0`, their
-    change `dp (c, 3)` per unit α)."""
-    force = np.zeros(3)
-    hess = np.zeros((3, 3))
-    none = np.zeros(0)
+    change `dp (c, 3)` per unit α). The terms of :func:`_contact`, written for one
+    direction (no 3 × 3 block is formed)."""
     slope = 0.0
     curve = 0.0
     for k in range(dr0.shape[0]):
         p0, p1, p2 = dp[k, 0], dp[k, 1], dp[k, 2]
         if p0 == 0.0 and p1 == 0.0 and p2 == 0.0:
             continue
-        _contact(k, dr0[k, 0] + alpha * p0, dr0[k, 1] + alpha * p1, dr0[k, 2] + alpha * p2,
-                 normal, base, a, cprime, shear0, cap, kn, ks, tension, stick, force, hess,
-                 True, none)
-        slope -= force[0] * p0 + force[1] * p1 + force[2] * p2
-        for p in range(3):
-            curve += dp[k, p] * (hess[p, 0] * p0 + hess[p, 1] * p1 + hess[p, 2] * p2)
+        n0, n1, n2 = normal[k, 0], normal[k, 1], normal[k, 2]
+        d0, d1, d2 = dr0[k, 0] + alpha * p0, dr0[k, 1] + alpha * p1, dr0[k, 2] + alpha * p2
+        dn = d0 * n0 + d1 * n1 + d2 * n2
+        pn = p0 * n0 + p1 * n1 + p2 * n2
+        g = base[k] + dn
+        fn = 0.0
+        hn = 0.0
+        if tension[k] > 0.0 or g < 0.0:
+            fn = -kn * g
+            hn = kn
+        e = a[k] - g
+        if e > 0.0 and cprime[k] > 0.0:
+            fn += cprime[k] * e
+            hn += cprime[k]
+        w0 = shear0[k, 0] + d0 - dn * n0
+        w1 = shear0[k, 1] + d1 - dn * n1
+        w2 = shear0[k, 2] + d2 - dn * n2
+        wn = w0 * n0 + w1 * n1 + w2 * n2
+        w0, w1, w2 = w0 - wn * n0, w1 - wn * n1, w2 - wn * n2
+        wl = np.sqrt(w0 * w0 + w1 * w1 + w2 * w2)
+        t0, t1, t2 = p0 - pn * n0, p1 - pn * n1, p2 - pn * n2  # dp in the plane
+        tt = t0 * t0 + t1 * t1 + t2 * t2
+        if stick[k] or ks * wl <= cap[k]:
+            slope += ks * (w0 * t0 + w1 * t1 + w2 * t2)
+            curve += ks * tt
+        else:
+            s = cap[k] / wl
+            wt = (w0 * t0 + w1 * t1 + w2 * t2) / wl
+            slope += s * wl * wt
+            curve += s * (tt - wt * wt)
+        slope -= fn * pn
+        curve += hn * pn * pn
     return slope, curve
 
 

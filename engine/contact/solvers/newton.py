@@ -274,7 +274,13 @@ def _gradient(st: _Step, rnd: _Round, x: np.ndarray, want_jac: bool, coupled: bo
 
 def _rotation(st: _Step, rnd: _Round, x: np.ndarray) -> None:
     """Set the round's gap corrections for the blocks' exact rotation to those of the
-    step `x`, in place (second order: left out of the Hessian, Gauss–Newton)."""
+    step `x`, in place (second order: left out of the Hessian, Gauss–Newton); none where
+    no block turns enough for its correction, ~θ² r, to move a spring's force by the force
+    residual."""
+    turn = np.einsum("mi,mi->m", x[:, 3:6], x[:, 3:6]) * st.radius if len(x) else x[:, 0]
+    if float(turn.max(initial=0.0)) * st.kn <= st.ftol:
+        rnd.delta = np.zeros(len(st.bi))
+        return
     dr = kern.relative_motion(x, st.row, st.bi, st.bj, st.ti, st.tj)
     rnd.delta = kern.rotation_correction(x, st.row, st.bi, st.bj, st.point_i, st.point_j,
                                          st.centroid, st.normal, dr)
@@ -405,11 +411,12 @@ def _line_search(st: _Step, rnd: _Round, x: np.ndarray, p: np.ndarray, dr: np.nd
     return lo if lo > 0.0 else alpha
 
 
-def _potential_step(st: _Step, rnd: _Round, x: np.ndarray, ls: _Systems, rtol: float
-                    ) -> np.ndarray:
-    """A Newton step of the step potential (its Hessian, an exact line search): E is
-    convex, so it always descends."""
-    _, grad, hess, dr = _gradient(st, rnd, x, True)
+def _potential_step(st: _Step, rnd: _Round, x: np.ndarray, ls: _Systems, rtol: float,
+                    terms: tuple) -> np.ndarray:
+    """A Newton step of the step potential from `x`, whose gradient, Hessian blocks and
+    relative displacements are `terms` (an exact line search): E is convex, so it always
+    descends."""
+    _, grad, hess, dr = terms
     p = ls.solve(hess, -grad, rtol, None)
     return x + _line_search(st, rnd, x, p, dr) * p
 
@@ -420,18 +427,18 @@ def _newton(st: _Step, rnd: _Round, x: np.ndarray, ls: _Systems) -> tuple[np.nda
     `st.ftol` (the gaps' rotation corrections following each iterate); StepFailure when
     they do not get there."""
     _rotation(st, rnd, x)
-    _, grad, _, _ = _gradient(st, rnd, x, False)
-    res = first = max(_residual(st, grad), 1e-300)
+    terms = _gradient(st, rnd, x, True)
+    res = first = max(_residual(st, terms[1]), 1e-300)
     for it in range(MAX_NEWTON + 1):
         if res <= st.ftol:
             return x, it
         if it == MAX_NEWTON:
             break
         rtol = min(KRYLOV_RTOL_MAX, max(KRYLOV_RTOL_MIN, 0.5 * res / first))
-        x = _potential_step(st, rnd, x, ls, rtol)
+        x = _potential_step(st, rnd, x, ls, rtol, terms)
         _rotation(st, rnd, x)
-        _, grad, _, _ = _gradient(st, rnd, x, False)
-        res = _residual(st, grad)
+        terms = _gradient(st, rnd, x, True)
+        res = _residual(st, terms[1])
     raise StepFailure(f"Newton's method did not reach the force residual {st.ftol:.3g} N in "
                       f"{MAX_NEWTON} iterations (residual {res:.3g} N)", "newton")
 
