@@ -45,22 +45,15 @@ import time as _time
 from dataclasses import dataclass
 
 import numpy as np
-import scipy.sparse as sp
-import scipy.sparse.linalg as spla
 
 from engine.contact.constraints import OPEN, ContactSet
 from engine.contact.patches import ContactPatches, bond_breaks, bonded_at_start
 from engine.contact.solution import StepResult
 from engine.contact.solvers import _newton_kernels as kern
+from engine.contact.solvers.newton_systems import NewtonSystems
 from engine.contact.solvers.open_close import contact_damping
 from engine.dynamics import assembly as asm
 from engine.dynamics.block_terms import block_dissipation, block_terms, bolt_links
-from engine.dynamics.solver import (
-    DIRECT_SOLVE_MAX_UNKNOWNS,
-    BlockJacobi,
-    SolveError,
-    make_solver,
-)
 from engine.dynamics.state import State
 from engine.dynamics.system import BlockSystem
 from engine.status import StepFailure
@@ -316,58 +309,6 @@ def _residual(st: _Step, grad: np.ndarray) -> float:
     return float(out.max())
 
 
-class _Systems:
-    """The Newton systems of one step on its pattern: the energy's Hessian by the engine's
-    Cholesky (small) or block-Jacobi conjugate gradients (large; the preconditioner kept
-    across iterations), the coupled Jacobian (not symmetric) by LU (small) or block-Jacobi
-    BiCGSTAB (large); the Krylov iterations counted."""
-
-    def __init__(self, st: _Step) -> None:
-        self.st = st
-        self.jacobi = BlockJacobi()
-        self.krylov_iterations = 0
-        #: rounds whose caps stayed lagged (the polish did not converge)
-        self.lagged = 0
-
-    def solve(self, jac: np.ndarray, rhs: np.ndarray, rtol: float, x0: np.ndarray | None,
-              symmetric: bool = True) -> np.ndarray:
-        """The Newton direction `(m, d)`: J p = rhs."""
-        st, plan = self.st, self.st.plan
-        if st.link is not None:
-            jac = np.concatenate([jac, st.link[4]])
-        data = kern.fill_jacobian(plan.base, plan.ti, plan.tj, jac, plan.slot_ii,
-                                  plan.slot_jj, plan.slot_ij, plan.slot_ji)
-        k, kdiag = plan.wrap(data, np.ascontiguousarray(np.einsum("cii->c", jac)))
-        try:
-            if symmetric:
-                solver = make_solver(k, plan.d, kdiag, self.jacobi, plan.components,
-                                     rtol=rtol)
-                p = solver(rhs.ravel(), None if x0 is None else x0.ravel())
-                self.krylov_iterations += getattr(solver, "iterations", 0)
-            else:
-                p = self._unsymmetric(k, data, kdiag, rhs.ravel(), rtol, x0)
-        except (SolveError, np.linalg.LinAlgError, RuntimeError) as exc:
-            raise StepFailure(f"the Newton system could not be solved: {exc}", "solve") from exc
-        if not np.all(np.isfinite(p)):
-            raise StepFailure("the Newton system's solution is not finite", "solve")
-        return p.reshape(rhs.shape)
-
-    def _unsymmetric(self, k: object, data: np.ndarray, kdiag: np.ndarray, f: np.ndarray,
-                     rtol: float, x0: np.ndarray | None) -> np.ndarray:
-        plan = self.st.plan
-        if isinstance(k, np.ndarray):
-            return np.linalg.solve(k, f)
-        if k.shape[0] <= DIRECT_SOLVE_MAX_UNKNOWNS:
-            return spla.splu(sp.csc_matrix(k)).solve(f)
-        x, its = kern.bicgstab_bsr(plan.indptr, plan.indices, data, np.linalg.inv(kdiag), f,
-                                   np.zeros_like(f) if x0 is None else x0.ravel(), rtol,
-                                   10 * len(f))
-        if its < 0:
-            raise SolveError("BiCGSTAB did not converge")
-        self.krylov_iterations += its
-        return x
-
-
 def _line_search(st: _Step, rnd: _Round, x: np.ndarray, p: np.ndarray, dr: np.ndarray
                  ) -> float:
     """The step α along `p` that minimises E(x + α p): the root of its slope, which grows
@@ -411,7 +352,7 @@ def _line_search(st: _Step, rnd: _Round, x: np.ndarray, p: np.ndarray, dr: np.nd
     return lo if lo > 0.0 else alpha
 
 
-def _potential_step(st: _Step, rnd: _Round, x: np.ndarray, ls: _Systems, rtol: float,
+def _potential_step(st: _Step, rnd: _Round, x: np.ndarray, ls: NewtonSystems, rtol: float,
                     terms: tuple) -> np.ndarray:
     """A Newton step of the step potential from `x`, whose gradient, Hessian blocks and
     relative displacements are `terms` (an exact line search): E is convex, so it always
@@ -421,7 +362,7 @@ def _potential_step(st: _Step, rnd: _Round, x: np.ndarray, ls: _Systems, rtol: f
     return x + _line_search(st, rnd, x, p, dr) * p
 
 
-def _newton(st: _Step, rnd: _Round, x: np.ndarray, ls: _Systems) -> tuple[np.ndarray, int]:
+def _newton(st: _Step, rnd: _Round, x: np.ndarray, ls: NewtonSystems) -> tuple[np.ndarray, int]:
     """x minimising the step potential of the round `rnd` (its caps held) from `x`: Newton
     steps with an exact line search until every block's out-of-balance force is below
     `st.ftol` (the gaps' rotation corrections following each iterate); StepFailure when
@@ -457,7 +398,7 @@ def _merit(st: _Step, grad: np.ndarray) -> float:
     return float(np.sum(_scaled(st, grad) ** 2))
 
 
-def _polish(st: _Step, rnd: _Round, x: np.ndarray, ls: _Systems
+def _polish(st: _Step, rnd: _Round, x: np.ndarray, ls: NewtonSystems
             ) -> tuple[np.ndarray, _Round, int, bool]:
     """Semi-smooth Newton from `x` on the step's equations with each cap following its
     contact's normal force (the Jacobian with the cap's dependence on N, a backtracking
@@ -491,7 +432,7 @@ def _polish(st: _Step, rnd: _Round, x: np.ndarray, ls: _Systems
     return x, cur, SEMI_SMOOTH_STEPS, False
 
 
-def _solve_round(st: _Step, rnd: _Round, x: np.ndarray, ls: _Systems
+def _solve_round(st: _Step, rnd: _Round, x: np.ndarray, ls: NewtonSystems
                  ) -> tuple[np.ndarray, _Round, int]:
     """The round's solution, `(x, the round it solves, Newton iterations)`: semi-smooth
     Newton with the caps following N (:func:`_polish`); where that does not converge, the
@@ -575,7 +516,7 @@ def newton_step(system: BlockSystem, state: State, contacts: ContactSet,
     st, mass = _setup(system, state, contacts, patches, dt)
     rnd = _first_round(system, state, contacts, st)
     broken0 = rnd.broken.copy()
-    ls = _Systems(st)
+    ls = NewtonSystems(st.plan, None if st.link is None else st.link[4])
     clock = diag.tick("assembly", clock)
     x = _warm(system, state, st, dt)
     iterations = 0
