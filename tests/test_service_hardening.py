@@ -464,11 +464,18 @@ def test_security_headers_and_a_csp_that_allows_exactly_the_inline_scripts(
 
 
 def test_key_cookie_is_secure_behind_tls(tmp_path: Path) -> None:
-    with make_client(tmp_path / "data", api_keys=frozenset({"k"})) as c:
+    """A trusted TLS-terminating proxy's X-Forwarded-Proto marks the cookie Secure; the
+    same header from anyone else is not believed (service.api.addresses)."""
+    with make_client(tmp_path / "data", peer=("10.0.0.2", 4000), api_keys=frozenset({"k"}),
+                     trusted_proxies=("10.0.0.2",)) as c:
         plain = c.get("/?f=html").text
         assert "polydda_key=" in plain and ";Secure" not in plain
         proxied = c.get("/?f=html", headers={"X-Forwarded-Proto": "https"}).text
         assert ";SameSite=Strict;Secure'" in proxied
+    with make_client(tmp_path / "data", peer=("10.0.0.3", 4000), api_keys=frozenset({"k"}),
+                     trusted_proxies=("10.0.0.2",)) as c:
+        forged = c.get("/?f=html", headers={"X-Forwarded-Proto": "https"}).text
+        assert ";Secure" not in forged
 
 
 def test_openapi_documents_401_and_429_where_keys_are_on(tmp_path: Path) -> None:

@@ -25,6 +25,7 @@ from fastapi.staticfiles import StaticFiles
 from prometheus_client import CollectorRegistry
 from starlette.concurrency import run_in_threadpool
 
+from service.api.addresses import ClientAddress, parse_networks
 from service.api.dependencies import RateLimiter, RootDep, StoreDep, _client
 from service.api.middleware import ErrorBoundary, HeadAsGet, RequestMetrics, SecurityHeaders
 from service.api.openapi import openapi_builder
@@ -121,11 +122,13 @@ def create_app(settings: Settings | None = None, lock: DataDirLock | None = None
                                           "Idempotency-Key", "Range"],
                            expose_headers=["Location", "Retry-After", "Idempotent-Replayed",
                                            "Content-Range", "X-PolyDDA-Recovered"])
-    # added innermost first: ErrorBoundary wraps them all
-    app.add_middleware(SecurityHeaders)
+    # added innermost first: the security headers wrap them all (the error boundary's
+    # 500 has them too), the client's address is derived before any route reads it
     app.add_middleware(HeadAsGet)
+    app.add_middleware(ClientAddress, trusted=parse_networks(settings.trusted_proxies))
     app.add_middleware(RequestMetrics, registry=app.state.metrics)
     app.add_middleware(ErrorBoundary)
+    app.add_middleware(SecurityHeaders)
     app.mount("/static", StaticFiles(directory=STATIC_DIR, check_dir=False), name="static")
     app.include_router(router)
     install_handlers(app)
@@ -204,10 +207,9 @@ def _service_routes(app: FastAPI, settings: Settings) -> None:
 
 
 def over_tls(request: Request) -> bool:
-    """True when the browser talks to the service over TLS: the request's scheme, or a
-    TLS-terminating proxy's X-Forwarded-Proto."""
-    proto = request.headers.get("x-forwarded-proto", "").split(",")[0].strip().lower()
-    return request.url.scheme in ("https", "wss") or proto == "https"
+    """True when the browser talks to the service over TLS: the request's scheme, which a
+    trusted TLS-terminating proxy's X-Forwarded-Proto sets (service.api.addresses)."""
+    return request.url.scheme in ("https", "wss")
 
 
 def home_page(request: Request, settings: Settings, store: JobStore, root: str) -> str:
@@ -263,7 +265,7 @@ def serve(host: str = "127.0.0.1", port: int = 8000, settings: Settings | None =
     try:
         uvicorn.run(create_app(settings, lock=lock), host=host, port=port,
                     timeout_graceful_shutdown=5, timeout_keep_alive=int(settings.keep_alive),
-                    log_level="info")
+                    log_level="info", proxy_headers=False)  # the app reads them itself
     finally:
         lock.release()
     return 0

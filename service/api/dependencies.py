@@ -104,6 +104,8 @@ KEY_COOKIE = "polydda_key"
 
 
 def _address(request: Request) -> str:
+    """The client's address as service.api.addresses derived it (a trusted proxy's
+    X-Forwarded-For, else the connection's peer)."""
     return request.client.host if request.client else "unknown"
 
 
