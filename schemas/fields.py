@@ -28,6 +28,10 @@ PRINTABLE = r"^[^\x00-\x1f\x7f]*$"
 Name = Annotated[str, Field(min_length=1, max_length=100, pattern=PRINTABLE)]
 #: the scene's own name: one line of text
 Label = Annotated[str, Field(max_length=200, pattern=PRINTABLE)]
+#: control characters but the tab and line breaks: what no text of several lines may hold
+MULTILINE = r"^[^\x00-\x08\x0b\x0c\x0e-\x1f\x7f]*$"
+#: text of several lines (a description): printable, tabs and line breaks allowed
+Text = Annotated[str, Field(max_length=20_000, pattern=MULTILINE)]
 #: a file's path, relative to the scene: one line of text
 FilePath = Annotated[str, Field(min_length=1, max_length=1000, pattern=PRINTABLE)]
 

@@ -37,12 +37,14 @@ from schemas.domains import MeshSpec, SlopeSpec, TerrainSpec
 from schemas.errors import (
     Problems,
     SceneError,
+    echo,
     fmt_count,
     fmt_num,
     format_loc,
     from_validation_error,
+    unicode_problems,
 )
-from schemas.fields import Label, Length, Name, Point, StrictModel
+from schemas.fields import MULTILINE, Label, Length, Name, Point, StrictModel, Text
 from schemas.stages import ExcavationSpec, StageSpec
 
 #: version of the scene format; a scene may state it as ``"schema_version"``
@@ -435,7 +437,8 @@ class GroundMotionSpec(_Model):
 
     time: list[float] | None = Field(None, description="s, non-decreasing")
     acceleration: list[Vec3] | None = Field(None, description="m/s², one (ax, ay, az) per time")
-    csv: str | None = Field(None, description="CSV text: t, ax, ay, az per row (s, m/s²)")
+    csv: Annotated[str, Field(pattern=MULTILINE)] | None = Field(
+        None, description="CSV text: t, ax, ay, az per row (s, m/s²)")
     scale: float = Field(1.0, description="factor on the accelerations")
 
     @model_validator(mode="after")
@@ -451,7 +454,7 @@ class GroundMotionSpec(_Model):
                 except ValueError:
                     if n == 1:
                         continue  # a header
-                    raise ValueError(f"csv line {n}: not numbers: {line!r}") from None
+                    raise ValueError(f"csv line {n}: not numbers: '{echo(line)}'") from None
                 if len(cells) != 4:
                     raise ValueError(f"csv line {n}: expected 4 values (t, ax, ay, az), "
                                      f"got {len(cells)}")
@@ -851,7 +854,7 @@ class Scene(_Model):
     schema_version: Annotated[str, Field(max_length=20)] = Field(
         SCHEMA_VERSION, description="scene format version")
     name: Label = "scene"
-    description: Annotated[str, Field(max_length=20_000)] = ""
+    description: Text = ""
     materials: dict[Name, MaterialSpec] = Field(
         default_factory=dict,
         description="by name; none given: one granite-like 'rock' (2600 kg/m³, 10 GPa, 0.25)",
@@ -1222,7 +1225,7 @@ def load_scene(source: str | Path | dict[str, Any]) -> Scene:
     data = _parse(source)
     if not isinstance(data, dict):
         raise SceneError([{"loc": "", "msg": "a scene must be a JSON object {...}"}])
-    problems = explicit_size_problems(data)
+    problems = unicode_problems(data) or explicit_size_problems(data)
     if problems:  # refused at once: validating 25,000 blocks field by field takes seconds
         raise SceneError(problems)
     try:

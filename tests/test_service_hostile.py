@@ -4,16 +4,20 @@ requests; the guard against the open network lives in the app factory."""
 
 from __future__ import annotations
 
+import json
 import os
 import subprocess
 import sys
+import time
 from pathlib import Path
+from typing import Any
 
 import httpx
 import pytest
 
 from service.api.addresses import ForwardedError, derive_client, parse_networks
-from tests.service_helpers import Server, cube_scene, free_port, wait_until
+from service.jobs.store import JobStore
+from tests.service_helpers import Server, cube_scene, free_port, make_client, wait_until
 
 PROBLEM = "application/problem+json"
 LOCAL2 = httpx.HTTPTransport(local_address="127.0.0.2")
@@ -153,3 +157,134 @@ def test_under_a_launcher_that_believes_the_header_forging_is_refused(tmp_path: 
     finally:
         proc.terminate()
         proc.wait(30)
+
+
+# ----------------------------------------------------------------------- no 500 on any body
+
+
+def _post_text(c: Any, text: str) -> Any:
+    return c.post("/jobs", content=text.encode(), headers={"Content-Type": "application/json"})
+
+
+@pytest.mark.parametrize(("where", "loc"), [
+    ("name", "name"), ("description", "description"), ("key", "materials['r\\ud800']"),
+    ("block", "blocks[0] ('c\\ud800').name"), ("unknown", "['x\\udc00y']")])
+def test_a_lone_surrogate_is_422_naming_the_field(tmp_path: Path, where: str,
+                                                  loc: str) -> None:
+    """`"cu\\ud800be"` is valid JSON but no text: hashing the request raised
+    UnicodeEncodeError, a 500 (without the security headers)."""
+    text = json.dumps(cube_scene())
+    text = {"name": text.replace('"name": "cube"', '"name": "cu\\ud800be"', 1),
+            "description": text.replace("{", '{"description": "a\\ud800", ', 1),
+            "key": text.replace("{", '{"materials": {"r\\ud800": {}}, ', 1),
+            "block": text.replace('"name": "cube", "vertices"', '"name": "c\\ud800", '
+                                  '"vertices"', 1),
+            "unknown": text.replace("{", '{"x\\udc00y": 1, ', 1)}[where]
+    with make_client(tmp_path / "data") as c:
+        r = _post_text(c, text)
+        assert r.status_code == 422 and r.headers["content-type"] == PROBLEM, r.text
+        assert [e["loc"] for e in r.json()["errors"]] == [loc], r.json()
+        assert "lone surrogate" in r.json()["errors"][0]["msg"]
+        assert c.get("/jobs").json()["numberMatched"] == 0
+
+
+def test_the_cli_names_a_lone_surrogate(tmp_path: Path,
+                                        capsys: pytest.CaptureFixture[str]) -> None:
+    from service.cli.main import main
+
+    path = tmp_path / "scene.json"
+    path.write_text(json.dumps(cube_scene()).replace('"cube"', '"cu\\ud800be"', 1))
+    assert main(["validate", str(path)]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("name: must be valid Unicode text"), err
+
+
+def test_every_response_has_the_security_headers_a_500_too(tmp_path: Path) -> None:
+    """The error boundary's 500 was sent outside the middleware that adds the headers."""
+    from service.api.app import create_app
+    from service.settings import Settings
+    from tests.service_helpers import TestClient
+
+    app = create_app(Settings(data_dir=tmp_path / "data"))
+
+    def broken() -> None:
+        raise RuntimeError("a bug")
+
+    app.add_api_route("/broken", broken)
+    with TestClient(app, raise_server_exceptions=False) as c:
+        r = c.get("/broken")
+        assert r.status_code == 500 and r.headers["content-type"] == PROBLEM
+        assert r.headers["x-content-type-options"] == "nosniff"
+        assert r.headers["x-frame-options"] == "DENY"
+        assert r.headers["content-security-policy"].startswith("default-src 'none'")
+
+
+# ----------------------------------------------------------------------- bounded replies
+
+
+def test_a_ten_million_character_name_gets_a_small_reply(tmp_path: Path) -> None:
+    """The block's name was copied into every error's field path: 20 MB from a 10 MB
+    request."""
+    scene = cube_scene()
+    scene["blocks"][0]["name"] = "x" * 10_000_000
+    with make_client(tmp_path / "data", max_body_bytes=20_000_000) as c:
+        r = c.post("/jobs", json=scene)
+        assert r.status_code == 422 and len(r.content) < 10_000, len(r.content)
+        errors = r.json()["errors"]
+        assert errors[0]["loc"].startswith("blocks[0] ('xxxx") and len(errors[0]["loc"]) < 100
+
+
+def test_many_bad_vertices_under_a_long_name_get_a_bounded_reply(tmp_path: Path) -> None:
+    """A 1 MB request with 40 bad vertices got a 124 MB 422 after 7.6 s: every error's path
+    held the 1 MB name, and every error was listed."""
+    scene = cube_scene()
+    block = scene["blocks"][0]
+    block["name"] = "n" * 1_000_000
+    block["vertices"] = block["vertices"] * 5 + [["x", "y", "z"]] * 40
+    with make_client(tmp_path / "data") as c:
+        t0 = time.monotonic()
+        r = c.post("/jobs", json=scene)
+        took = time.monotonic() - t0
+    assert r.status_code == 422, r.text[:300]
+    doc = r.json()
+    assert len(r.content) < 60_000, len(r.content)
+    assert len(doc["errors"]) == 50 and doc["more_errors"] == 1 + 3 * 40 - 50, (
+        len(doc["errors"]), doc.get("more_errors"))
+    assert "more" in doc["detail"] and took < 5, took
+
+
+def test_the_cli_lists_problems_bounded(tmp_path: Path,
+                                        capsys: pytest.CaptureFixture[str]) -> None:
+    from service.cli.main import main
+
+    scene = cube_scene()
+    scene["blocks"][0]["name"] = "n" * 1_000_000
+    scene["blocks"][0]["vertices"] += [["x", "y", "z"]] * 40
+    path = tmp_path / "scene.json"
+    path.write_text(json.dumps(scene))
+    assert main(["validate", str(path)]) == 2
+    lines = capsys.readouterr().err.splitlines()
+    assert len(lines) == 51 and lines[-1].startswith("… and "), lines[-1]
+    assert max(len(line) for line in lines) < 1000
+
+
+def test_a_nul_in_the_description_is_refused_and_never_shown_raw(tmp_path: Path) -> None:
+    """A NUL in `description` was stored and shown raw in /report."""
+    from tests.service_helpers import synthetic_job
+
+    scene = dict(cube_scene(), description="line one\nline\ttwo")
+    with make_client(tmp_path / "data") as c:
+        assert c.post("/jobs", json=scene).status_code == 201
+        r = c.post("/jobs", json=dict(scene, description="a\x00b"))
+        assert r.status_code == 422 and r.json()["errors"][0]["loc"] == "description"
+    # a job stored before: its page shows a replacement character, not the NUL
+    data = tmp_path / "old"
+    job_id, _ = synthetic_job(data, n_blocks=2, n_steps=2)
+    store = JobStore(data / "jobs.sqlite")
+    with store.connect() as db:  # the row as an older service stored it
+        db.execute("UPDATE jobs SET scene = ? WHERE id = ?",
+                   (json.dumps({"name": "old", "description": "a\x00b"}), job_id))
+    with make_client(data) as c:
+        for page in (f"/jobs/{job_id}/report", "/?f=html"):
+            r = c.get(page)
+            assert r.status_code == 200 and "\x00" not in r.text, page
