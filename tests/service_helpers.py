@@ -319,4 +319,4 @@ def make_client(data_dir: Path, peer: tuple[str, int] = ("testclient", 50000),
     from service.settings import Settings
 
     kw: dict[str, Any] = {"data_dir": data_dir, "max_workers": 2, "cancel_grace": 0.5}
-    return TestClient(create_app(Settings(**(kw | settings))), client=peer)
+    return TestClient(create_app(Settings(**(kw | settings)), listen="127.0.0.1"), client=peer)

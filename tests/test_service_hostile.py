@@ -205,7 +205,7 @@ def test_every_response_has_the_security_headers_a_500_too(tmp_path: Path) -> No
     from service.settings import Settings
     from tests.service_helpers import TestClient
 
-    app = create_app(Settings(data_dir=tmp_path / "data"))
+    app = create_app(Settings(data_dir=tmp_path / "data"), listen="127.0.0.1")
 
     def broken() -> None:
         raise RuntimeError("a bug")
@@ -288,3 +288,51 @@ def test_a_nul_in_the_description_is_refused_and_never_shown_raw(tmp_path: Path)
         for page in (f"/jobs/{job_id}/report", "/?f=html"):
             r = c.get(page)
             assert r.status_code == 200 and "\x00" not in r.text, page
+
+
+# ----------------------------------------------------------------------- the factory's guard
+
+
+def test_the_app_factory_refuses_the_network_without_keys(tmp_path: Path) -> None:
+    """`uvicorn --factory service.api.app:create_app --host 0.0.0.0` served the network
+    without keys: the guard lived in `polydda serve` only. The factory cannot know where
+    its launcher listens, so without keys it needs the override; with either it serves."""
+    proc = _uvicorn_factory(tmp_path, "0.0.0.0", free_port())
+    try:
+        assert proc.wait(60) != 0
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait(10)
+    log = (tmp_path / "uvicorn.log").read_text()
+    assert "refusing to serve" in log and "POLYDDA_API_KEYS" in log, log[-2000:]
+    for env in ({"POLYDDA_API_KEYS": "k"}, {"POLYDDA_ALLOW_OPEN_NETWORK": "true"}):
+        port = free_port()
+        proc = _uvicorn_factory(tmp_path, "127.0.0.1", port, **env)
+        try:
+            wait_until(lambda port=port: _answers(f"http://127.0.0.1:{port}/health"), 60,
+                       f"uvicorn to serve with {env}")
+        finally:
+            proc.terminate()
+            proc.wait(30)
+
+
+def _answers(url: str) -> bool:
+    try:
+        return httpx.get(url, timeout=1).status_code == 200
+    except httpx.TransportError:
+        return False
+
+
+def test_in_process_the_factory_needs_to_know_where_it_listens(tmp_path: Path) -> None:
+    from service.api.app import OpenNetworkRefused, create_app
+    from service.settings import Settings
+
+    settings = Settings(data_dir=tmp_path / "data")
+    for listen in (None, "0.0.0.0", "192.0.2.1"):
+        with pytest.raises(OpenNetworkRefused, match="POLYDDA_ALLOW_OPEN_NETWORK"):
+            create_app(settings, listen=listen)
+    for listen in ("127.0.0.1", "::1", "localhost"):
+        create_app(settings, listen=listen)
+    create_app(Settings(data_dir=tmp_path / "data", api_keys=frozenset({"k"})))
+    create_app(Settings(data_dir=tmp_path / "data", allow_open_network=True), listen="0.0.0.0")

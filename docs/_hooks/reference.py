@@ -190,7 +190,7 @@ def cli_markdown() -> str:
 def _openapi() -> dict[str, Any]:
     from service.api.app import create_app
 
-    return create_app().openapi()
+    return create_app(listen="127.0.0.1").openapi()  # the API as served on loopback
 
 
 def _schema_type(spec: dict[str, Any]) -> str:
