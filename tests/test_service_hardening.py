@@ -241,11 +241,11 @@ def test_store_names_a_full_database_and_the_api_answers_507(tmp_path: Path,
 def test_an_outcome_that_cannot_be_written_is_retried(tmp_path: Path) -> None:
     """A job process ended while its status could not be written: the supervisor keeps
     the outcome it sent and writes it when it can (it used to forget the process and
-    leave the job running for ever)."""
+    leave the job running for ever). One run allowed: the lost job then fails."""
     from service.jobs.embedded import EmbeddedBackend
     from service.settings import Settings
 
-    settings = Settings(data_dir=tmp_path / "data")
+    settings = Settings(data_dir=tmp_path / "data", max_attempts=1)
     store = JobStore(settings.db_path)
     job, _ = store.submit(process="simulation", scene="{}", client="c", quota=10)
     assert store.claim(job.id)

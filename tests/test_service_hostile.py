@@ -336,3 +336,61 @@ def test_in_process_the_factory_needs_to_know_where_it_listens(tmp_path: Path) -
         create_app(settings, listen=listen)
     create_app(Settings(data_dir=tmp_path / "data", api_keys=frozenset({"k"})))
     create_app(Settings(data_dir=tmp_path / "data", allow_open_network=True), listen="0.0.0.0")
+
+
+# ----------------------------------------------------------------------- the minor ones
+
+
+def test_the_quota_message_counts_jobs_and_checks_apart() -> None:
+    """With 16 jobs and another submission being checked, the 429 said "you have 17 jobs
+    accepted, running or being checked; the limit is 16" while 16 existed."""
+    from service.api.problems import Problem
+    from service.api.submission import InFlight
+
+    flight = InFlight()
+    with flight.hold("ip:a", 15, 16):
+        with pytest.raises(Problem) as caught:
+            with flight.hold("ip:a", 16, 16):
+                pass
+    detail = caught.value.detail
+    assert detail.startswith("you have 16 unfinished jobs (accepted or running) and 1 more "
+                             "submission being checked; the limit is 16"), detail
+    with pytest.raises(Problem) as caught, flight.hold("ip:b", 1, 1):
+        pass
+    assert caught.value.detail.startswith("you have 1 unfinished job (accepted or running); "
+                                          "the limit is 1 at once"), caught.value.detail
+
+
+def test_an_unknown_result_file_says_what_the_job_has(tmp_path: Path) -> None:
+    """It said "(it successful: completed 200 steps)"."""
+    from tests.service_helpers import synthetic_job
+
+    job_id, _ = synthetic_job(tmp_path / "data", n_blocks=2, n_steps=2)
+    with make_client(tmp_path / "data") as c:
+        r = c.get(f"/jobs/{job_id}/results/nothing.csv")
+    detail = r.json()["detail"]
+    assert r.status_code == 404 and "(it " not in detail, detail
+    assert f"job {job_id} has no result 'nothing.csv'; the job is successful " \
+           "(synthetic: 2 blocks, 2 steps); its results: result.h5" in detail, detail
+
+
+@pytest.mark.parametrize("attempts", [2, 1])
+def test_a_killed_job_process_is_retried_as_after_a_restart(tmp_path: Path,
+                                                            attempts: int) -> None:
+    """kill -9 of an embedded job process failed the job at once ("resubmit the job"),
+    while a restart of the service re-queues its running job: one policy now, at most
+    POLYDDA_MAX_ATTEMPTS runs."""
+    from tests.service_helpers import job_row, wait_final
+
+    data = tmp_path / "data"
+    with make_client(data, max_attempts=attempts) as c:
+        url = c.post("/jobs", json=cube_scene(duration=0.6)).headers["Location"]
+        wait_until(lambda: (c.get(url).json()["step"] or 0) > 20, 120, "the job to run")
+        os.kill(job_row(data, url.rsplit("/", 1)[1])["worker_pid"], 9)
+        job = wait_final(c, url, timeout=180)
+    if attempts == 2:
+        assert job["status"] == "successful" and job["attempts"] == 2, job
+    else:
+        assert job["status"] == "failed" and job["error_kind"] == "system", job
+        assert "its job process ended unexpectedly (killed by signal SIGKILL), 1 time; " \
+               "not retried again" in job["message"], job["message"]
