@@ -401,7 +401,7 @@ def _on_surface(poly: Polyhedron, point: np.ndarray, tol: float) -> bool:
         b = np.roll(a, -1, axis=0)
         x, y = float(point @ u), float(point @ v)
         crosses = (a[:, 1] > y) != (b[:, 1] > y)
-        with np.errstate(divide="ignore", invalid="ignore"):
+        with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
             xi = a[:, 0] + (y - a[:, 1]) * (b[:, 0] - a[:, 0]) / (b[:, 1] - a[:, 1])
         if np.count_nonzero(crosses & (x < xi)) % 2 == 1:
             return True

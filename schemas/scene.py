@@ -123,6 +123,9 @@ def _between(lo: float, hi: float, unit: str, *, hi_open: bool = False) -> Any:
 Positive = Annotated[float, Field(gt=0)]
 NonNegative = Annotated[float, Field(ge=0)]
 Vec3 = Annotated[list[float], Field(min_length=3, max_length=3)]
+#: a direction (its length does not matter): components within ±1e6, so its norm is finite
+Direction = Annotated[list[Annotated[float, Field(ge=-1e6, le=1e6)]],
+                      Field(min_length=3, max_length=3)]
 FrictionAngle = _between(0, 90, "degrees", hi_open=True)
 Dip = _between(0, 90, "degrees")
 DipDirection = _between(-360, 360, "degrees")
@@ -390,8 +393,8 @@ class BoltPatternSpec(_BoltProperties):
     Bolts are named `name_prefix` + 1, 2, ..."""
 
     origin: Point = Field(description="m, the head of the first bolt (on the face)")
-    face_normal: Vec3 = Field(description="outward normal of the face the heads are on")
-    row_direction: Vec3 = Field(description="a direction in the face along which a row runs")
+    face_normal: Direction = Field(description="outward normal of the face the heads are on")
+    row_direction: Direction = Field(description="a direction in the face along which a row runs")
     spacing: Length = Field(description="m between bolts along a row")
     row_spacing: Length | None = Field(None, description="m between rows (default: "
                                                            "spacing)")
