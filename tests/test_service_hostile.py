@@ -394,3 +394,20 @@ def test_a_killed_job_process_is_retried_as_after_a_restart(tmp_path: Path,
         assert job["status"] == "failed" and job["error_kind"] == "system", job
         assert "its job process ended unexpectedly (killed by signal SIGKILL), 1 time; " \
                "not retried again" in job["message"], job["message"]
+
+
+def test_the_threat_model_names_tests_that_exist() -> None:
+    """Every test docs/service-security.md's threat model names exists (a renamed test
+    would leave the table pointing nowhere)."""
+    import ast
+    import re
+
+    root = Path(__file__).resolve().parent
+    page = (root.parent / "docs" / "service-security.md").read_text()
+    table = page.split("## Threat model", 1)[1].split("\n## ", 1)[0]
+    named = re.findall(r"`(test_[a-z_]+\.py)(?:::(test_[a-z0-9_]+))?`", table)
+    assert len(named) >= 20, named
+    for module, test in named:
+        tree = ast.parse((root / module).read_text())
+        names = {f.name for f in tree.body if isinstance(f, ast.FunctionDef)}
+        assert not test or test in names, f"{module}::{test}"
