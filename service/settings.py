@@ -3,7 +3,7 @@
 Example: `POLYDDA_DATA_DIR=/data POLYDDA_BACKEND=rq POLYDDA_REDIS_URL=redis://redis:6379/0`.
 `POLYDDA_API_KEYS`, `POLYDDA_ADMIN_KEYS` and `POLYDDA_CORS_ORIGINS` are comma-separated
 lists (empty API keys: no key needed, and every client sees only the jobs of its address;
-`polydda serve` then listens on loopback only, unless POLYDDA_ALLOW_OPEN_NETWORK=true).
+the app factory then serves loopback only, unless POLYDDA_ALLOW_OPEN_NETWORK=true).
 `POLYDDA_TRUSTED_PROXIES` lists the reverse proxies (addresses or networks) whose
 X-Forwarded-For and X-Forwarded-Proto are believed; empty (the default): nobody's.
 """
@@ -106,9 +106,11 @@ class Settings(BaseSettings):
                         "log) and whose X-Forwarded-Proto says the scheme; empty: the "
                         "headers are ignored, every client is the address it connects from")
     allow_open_network: bool = Field(
-        False, description="let `polydda serve` listen beyond loopback without API keys "
-                           "(every client on the network may then submit jobs; each sees "
-                           "only the jobs of its own address)")
+        False, description="let the service serve without API keys where loopback is not "
+                           "certain: `polydda serve` on another address, or a launcher "
+                           "whose address the app factory cannot know (uvicorn --factory); "
+                           "every client that reaches it may then submit jobs, each sees "
+                           "only the jobs of its own address")
 
     @field_validator("api_keys", "admin_keys", mode="before")
     @classmethod
