@@ -10,7 +10,8 @@ it is gone; the next API process re-queues what was left running.
 
 A job whose process ended without an outcome (killed, crashed) is lost as a job is when
 the API process stops under it: one policy for both (Backend.requeue_or_fail), back to the
-queue until it has run `max_attempts` times, then failed, kind `system`.
+queue until it has run `max_attempts` times, then failed, kind `system`. Only a process
+that died while the data disk was full fails at once (no retry cures that).
 """
 
 from __future__ import annotations
@@ -267,9 +268,12 @@ class EmbeddedBackend(Backend):
         if job is not None and job.cancel_requested is not None:
             return {"status": DISMISSED, "finished": now,
                     "message": "cancelled: the job process was stopped; partial results kept"}
-        full = " while the data directory's disk was full" if self._disk_full_now() else ""
-        return {"lost": f"its job process ended unexpectedly ({_exit_text(proc.returncode)})"
-                        f"{full}"}
+        why = f"its job process ended unexpectedly ({_exit_text(proc.returncode)})"
+        if self._disk_full_now():  # a cause no retry cures: failed, as a full disk is
+            return {"status": FAILED, "finished": now, "error_kind": "system",
+                    "message": f"system error: {why} while the data directory's disk was "
+                               "full; not retried"}
+        return {"lost": why}
 
     def _disk_full_now(self) -> bool:
         try:
