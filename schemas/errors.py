@@ -20,8 +20,11 @@ from pydantic import BaseModel, ValidationError
 Loc = Sequence[str | int]
 
 _IDENT = re.compile(r"^[A-Za-z_][A-Za-z0-9_\-]*$")
-#: characters of an input a message quotes at most (a name, a key, a line of text)
+#: characters of an input a message quotes at most (a value, a line of text)
 ECHO_CHARS = 40
+#: characters of a name or key a field path shows at most (the longest name a scene may
+#: give: schemas.fields.Name)
+NAME_CHARS = 100
 #: characters of a field path and of a message at most (whatever they quote)
 MAX_LOC_CHARS, MAX_MSG_CHARS = 200, 500
 #: control characters and lone surrogates: written as escapes wherever input is echoed
@@ -123,14 +126,14 @@ def format_loc(loc: Loc, data: Any = None) -> str:
             out += f"[{part}]"
             item = node[part] if isinstance(node, list) and 0 <= part < len(node) else None
             if isinstance(item, dict) and isinstance(item.get("name"), str):
-                out += f" ('{echo(item['name'])}')"
+                out += f" ('{echo(item['name'], NAME_CHARS)}')"
             node = item
         else:
             key = str(part)
-            if _IDENT.match(key) and len(key) <= ECHO_CHARS:
+            if _IDENT.match(key) and len(key) <= NAME_CHARS:
                 out += ("." if out else "") + key
             else:
-                out += f"['{echo(key)}']"
+                out += f"['{echo(key, NAME_CHARS)}']"
             node = node.get(key) if isinstance(node, dict) else None
     return out
 
