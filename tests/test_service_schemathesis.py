@@ -93,7 +93,7 @@ include-operation-id = ["getResultFile"]
 
 def _ended_jobs(url: str) -> tuple[list[str], list[str]]:
     """A simulation and a limit-equilibrium job that have ended (the ids the stateless run
-    uses), and two more for DELETE to remove."""
+    uses), and one more for DELETE to remove."""
     import httpx
 
     from tests.service_helpers import ROOT, cube_scene, wait_final
@@ -103,8 +103,7 @@ def _ended_jobs(url: str) -> tuple[list[str], list[str]]:
         urls = [c.post("/jobs", json=cube_scene(duration=0.01)).headers["Location"],
                 c.post("/processes/limit-equilibrium/execution", json=planar)
                 .headers["Location"]]
-        urls += [c.post("/jobs", json=cube_scene(duration=0.01)).headers["Location"]
-                 for _ in range(2)]
+        urls.append(c.post("/jobs", json=cube_scene(duration=0.01)).headers["Location"])
         for job_url in urls:
             assert wait_final(c, job_url, timeout=180)["status"] == "successful", job_url
     ids = [u.rsplit("/", 1)[1] for u in urls]
