@@ -75,7 +75,7 @@ class AnalysisControls:
     """How to run: time, penalties, iteration limits, block model.
 
     `penalty` is the normal stiffness of one contact spring (N/m; None: derived from the
-    scene, :func:`engine.dynamics.system.default_penalty`); the shear spring is
+    scene, :func:`default_penalty`); the shear spring is
     `shear_penalty_ratio * penalty`. `contact_damping` is each contact dashpot's fraction
     of critical damping (0.5: a rock impact's restitution coefficient about 0.4).
     `dynamic_ratio` is k01 (1 dynamic, 0 static).
@@ -218,3 +218,27 @@ class Model:
         lo = np.min([b.polyhedron.bounds[0] for b in self.blocks], axis=0)
         hi = np.max([b.polyhedron.bounds[1] for b in self.blocks], axis=0)
         return float(np.max(hi - lo))
+
+
+#: the default penalty makes a contact spring this many times stiffer than the inertia a
+#: typical block opposes to a step's motion (2 m / Δt², the mass term of the step's
+#: equations): contacts then act as constraints within a step instead of cushions
+PENALTY_INERTIA_RATIO = 10.0
+
+
+def default_penalty(model: Model) -> float:
+    """The scene's contact penalty (N/m) when the user gives none: the larger of the rock's
+    own stiffness at block size, E L (E the stiffest movable material, L the median movable
+    block's size V^⅓), and PENALTY_INERTIA_RATIO × 2 m / Δt² (m the median movable block's
+    mass, Δt the asked time step); rounded to one significant figure."""
+    free = [b for b in model.blocks if not b.fixed] or list(model.blocks)
+    if not free:
+        return 1e10
+    volume = np.array([b.polyhedron.volume for b in free])
+    mass = volume * np.array([model.materials[b.material].density for b in free])
+    young = max(model.materials[b.material].young_modulus for b in free)
+    dt = model.controls.time_step
+    k = max(young * float(np.median(volume)) ** (1 / 3),
+            PENALTY_INERTIA_RATIO * 2.0 * float(np.median(mass)) / dt**2)
+    lead = 10.0 ** np.floor(np.log10(k))
+    return float(np.round(k / lead) * lead)

@@ -402,7 +402,7 @@ def _on_surface(poly: Polyhedron, point: np.ndarray, tol: float) -> bool:
         b = np.roll(a, -1, axis=0)
         x, y = float(point @ u), float(point @ v)
         crosses = (a[:, 1] > y) != (b[:, 1] > y)
-        with np.errstate(divide="ignore", invalid="ignore"):
+        with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
             xi = a[:, 0] + (y - a[:, 1]) * (b[:, 0] - a[:, 0]) / (b[:, 1] - a[:, 1])
         if np.count_nonzero(crosses & (x < xi)) % 2 == 1:
             return True
@@ -847,6 +847,7 @@ def build_model(scene: Scene | str | Path | dict[str, Any],
             scene.ground_motion.scale * np.asarray(scene.ground_motion.acceleration, float)),
         controls=controls,
     )
+    _physical_problems(scene, model)
     stages = _stages(scene, model, owner, find, jmat_names)
     return BuildResult(
         model=model, stages=stages, excavated=owner + [None] * len(scene.blocks),
@@ -860,6 +861,23 @@ def build_model(scene: Scene | str | Path | dict[str, Any],
         factor_of_safety=fos,
         seismic_coefficient=kc,
     )
+
+
+def _physical_problems(scene: Scene, model: Model) -> None:
+    """SceneError when the built model spans more than a model's physical size (a terrain
+    or mesh read from its file too) or a given penalty lies too far from the derived one
+    (schemas.physical), unless the scene allows the unphysical."""
+    from schemas.physical import SIZE, penalty_problems, unphysical_allowed
+
+    a = scene.analysis
+    with unphysical_allowed(a.allow_unphysical):
+        problems = penalty_problems(model, a.penalty, a.fixed_point_penalty)
+        where = SIZE.outside(model.scale) if model.blocks else None
+    if where is not None:
+        problems.append({"loc": "domain" if scene.domain is not None else "blocks",
+                         "msg": f"the model spans {model.scale:.6g} m, {where}"})
+    if problems:
+        raise SceneError(problems)
 
 
 def _stages(scene: Scene, model: Model, owner: list[str | None], find: _Locator,

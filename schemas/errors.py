@@ -20,13 +20,45 @@ from pydantic import BaseModel, ValidationError
 Loc = Sequence[str | int]
 
 _IDENT = re.compile(r"^[A-Za-z_][A-Za-z0-9_\-]*$")
+#: characters of an input a message quotes at most (a value, a line of text)
+ECHO_CHARS = 40
+#: characters of a name or key a field path shows at most (the longest name a scene may
+#: give: schemas.fields.Name)
+NAME_CHARS = 100
+#: characters of a field path and of a message at most (whatever they quote)
+MAX_LOC_CHARS, MAX_MSG_CHARS = 200, 500
+#: control characters and lone surrogates: written as escapes wherever input is echoed
+_UNSAFE = re.compile(r"[\x00-\x1f\x7f\ud800-\udfff]")
+_LONE_SURROGATE = re.compile(r"[\ud800-\udfff]")
+
+
+def _escape(text: str) -> str:
+    return _UNSAFE.sub(lambda m: m.group().encode("unicode_escape").decode("ascii"), text)
+
+
+def echo(text: str, limit: int = ECHO_CHARS) -> str:
+    """A short, printable excerpt of user input for a message: at most `limit` characters
+    (then "…"), control characters and lone surrogates written as escapes (\\x00, \\ud800),
+    so a reply stays small and valid UTF-8 whatever was sent."""
+    return _escape(text[:limit]) + ("…" if len(text) > limit else "")
+
+
+def bounded(text: str, limit: int) -> str:
+    """`text` made printable (as :func:`echo`) and cut to about `limit` characters, saying
+    how many more there were: the last guard on anything a reply repeats."""
+    if len(text) <= limit and not _UNSAFE.search(text):
+        return text
+    safe = _escape(text[:limit])
+    return safe if len(text) <= limit else f"{safe}… ({len(text) - limit:,} more characters)"
 
 
 class SceneError(Exception):
-    """A scene the engine cannot use; `problems` lists `{"loc": ..., "msg": ...}` dicts."""
+    """A scene the engine cannot use; `problems` lists `{"loc": ..., "msg": ...}` dicts
+    (each bounded and printable: :func:`bounded`)."""
 
     def __init__(self, problems: Sequence[dict[str, str]]):
-        self.problems = [{"loc": str(p.get("loc", "")), "msg": str(p["msg"])} for p in problems]
+        self.problems = [{"loc": bounded(str(p.get("loc", "")), MAX_LOC_CHARS),
+                          "msg": bounded(str(p["msg"]), MAX_MSG_CHARS)} for p in problems]
         super().__init__("\n".join(self.lines()))
 
     def lines(self) -> list[str]:
@@ -94,18 +126,52 @@ def format_loc(loc: Loc, data: Any = None) -> str:
             out += f"[{part}]"
             item = node[part] if isinstance(node, list) and 0 <= part < len(node) else None
             if isinstance(item, dict) and isinstance(item.get("name"), str):
-                out += f" ('{item['name']}')"
+                out += f" ('{echo(item['name'], NAME_CHARS)}')"
             node = item
         else:
             key = str(part)
-            out += (("." if out else "") + key) if _IDENT.match(key) else f"[{key!r}]"
+            if _IDENT.match(key) and len(key) <= NAME_CHARS:
+                out += ("." if out else "") + key
+            else:
+                out += f"['{echo(key, NAME_CHARS)}']"
             node = node.get(key) if isinstance(node, dict) else None
     return out
 
 
+def unicode_problems(data: Any, limit: int = 20) -> list[dict[str, str]]:
+    """Strings of parsed JSON (values and keys, at any depth) holding a lone surrogate
+    (`"\\ud800"` unpaired: valid JSON, but no text: it cannot be stored or written),
+    each with its field path; at most `limit`."""
+    problems: list[dict[str, str]] = []
+    stack: list[tuple[list[str | int], Any]] = [([], data)]
+    while stack and len(problems) < limit:
+        path, node = stack.pop()
+        if isinstance(node, dict):
+            items: list[tuple[str | int, Any]] = list(node.items())
+        elif isinstance(node, list):
+            items = list(enumerate(node))
+        else:
+            items = []
+        inner = []
+        for key, value in items:
+            if isinstance(key, str) and _LONE_SURROGATE.search(key):
+                problems.append({"loc": format_loc([*path, key], data), "msg": (
+                    "this name is not valid Unicode text (it holds a lone surrogate, "
+                    f"{_escape(_LONE_SURROGATE.search(key).group())})")})
+            elif isinstance(value, str):
+                if found := _LONE_SURROGATE.search(value):
+                    problems.append({"loc": format_loc([*path, key], data), "msg": (
+                        "must be valid Unicode text: it holds a lone surrogate "
+                        f"({_escape(found.group())}) at character {found.start() + 1:,}")})
+            elif isinstance(value, dict | list):
+                inner.append(([*path, key], value))
+        stack.extend(reversed(inner))  # depth first, in the document's order
+    return problems[:limit]
+
+
 def _got(value: Any) -> str:
     if isinstance(value, str):
-        return f"'{value}'" if len(value) <= 40 else f"'{value[:37]}...'"
+        return f"'{echo(value)}'"
     if isinstance(value, dict):
         return "an object"
     if isinstance(value, list):
@@ -183,6 +249,11 @@ def _message(err: dict[str, Any], root: type[BaseModel] | None) -> str:
     if kind in ("string_type",):
         return f"must be text, got {_got(value)}"
     if kind == "string_pattern_mismatch":
+        from schemas.fields import MULTILINE
+
+        if ctx.get("pattern") == MULTILINE:
+            return ("must be printable text (no control characters such as NUL; tabs and "
+                    "line breaks are fine)")
         return "must be printable text on one line (no control characters such as NUL)"
     if kind in ("string_too_short", "string_too_long"):
         lo, hi = ctx.get("min_length"), ctx.get("max_length")

@@ -38,12 +38,40 @@ from schemas.domains import MeshSpec, SlopeSpec, TerrainSpec
 from schemas.errors import (
     Problems,
     SceneError,
+    echo,
     fmt_count,
     fmt_num,
     format_loc,
     from_validation_error,
+    unicode_problems,
 )
-from schemas.fields import Label, Length, Name, Point, StrictModel
+from schemas.fields import MULTILINE, Label, Length, Name, Point, StrictModel, Text
+from schemas.physical import (
+    ACCELERATION,
+    RECORD_TIME,
+    SWEEP_RANGES,
+    BoltCapacity,
+    BoltForce,
+    BoltStiffness,
+    Density,
+    Duration,
+    Factor,
+    Force,
+    Gravity,
+    MinTimeStep,
+    Pressure,
+    ShearRatio,
+    Spin,
+    Strength,
+    TimeStep,
+    UnitWeight,
+    Velocity,
+    YoungModulus,
+    check_all,
+    extent_problems,
+    physical,
+    unphysical_allowed,
+)
 from schemas.stages import ExcavationSpec, StageSpec
 
 #: version of the scene format; a scene may state it as ``"schema_version"``
@@ -96,6 +124,9 @@ def _between(lo: float, hi: float, unit: str, *, hi_open: bool = False) -> Any:
 Positive = Annotated[float, Field(gt=0)]
 NonNegative = Annotated[float, Field(ge=0)]
 Vec3 = Annotated[list[float], Field(min_length=3, max_length=3)]
+#: a direction (its length does not matter): components within ±1e6, so its norm is finite
+Direction = Annotated[list[Annotated[float, Field(ge=-1e6, le=1e6)]],
+                      Field(min_length=3, max_length=3)]
 FrictionAngle = _between(0, 90, "degrees", hi_open=True)
 Dip = _between(0, 90, "degrees")
 DipDirection = _between(-360, 360, "degrees")
@@ -130,8 +161,8 @@ def _exactly_one(obj: BaseModel, names: tuple[str, ...]) -> None:
 class MaterialSpec(_Model):
     """Intact rock of the blocks."""
 
-    density: Positive = Field(_MATERIAL.density, description="kg/m³")
-    young_modulus: Positive = Field(_MATERIAL.young_modulus,
+    density: Density = Field(_MATERIAL.density, description="kg/m³")
+    young_modulus: YoungModulus = Field(_MATERIAL.young_modulus,
                                     description="Pa (unused for rigid blocks)")
     poisson_ratio: PoissonRatio = Field(_MATERIAL.poisson_ratio,
                                         description="0 to 0.5 (unused for rigid blocks)")
@@ -142,8 +173,8 @@ class JointMaterialSpec(_Model):
 
     friction_angle: FrictionAngle = Field(DEFAULT_FRICTION_ANGLE_DEG,
                                           description="degrees, 0 to 90")
-    cohesion: NonNegative = Field(_JOINT.cohesion, description="Pa")
-    tensile_strength: NonNegative = Field(_JOINT.tensile_strength, description="Pa")
+    cohesion: Strength = Field(_JOINT.cohesion, description="Pa")
+    tensile_strength: Strength = Field(_JOINT.tensile_strength, description="Pa")
 
 
 # --------------------------------------------------------------------------- geometry
@@ -188,12 +219,12 @@ class DomainSpec(_Model):
     mesh: MeshSpec | None = None
     material: Name | None = Field(None, description="material name (default material if omitted)")
     name_prefix: Name = "B"
-    min_block_volume: NonNegative | None = Field(
+    min_block_volume: physical(0, 1e15, "m³", "a volume", Field(ge=0)) | None = Field(
         None, description="m³; smaller cut blocks merge into the neighbour they share the "
                           "largest face with (default: 1/1000 of the median block volume; "
                           "0 keeps every block)"
     )
-    min_block_width: NonNegative | None = Field(
+    min_block_width: physical(0, 1e5, "m", "a size", Field(ge=0)) | None = Field(
         None, description="m; thinner cut blocks (slivers: their thinnest extent across "
                           "their own faces) merge into the neighbour they share the largest "
                           "face with (default: 1/10 of the joint sets' median spacing, or of "
@@ -246,8 +277,8 @@ class JointSpec(_Model):
 class VelocitySpec(_Model):
     """Initial velocity: translation (m/s) and spin (rad/s) about the centroid."""
 
-    translation: Vec3 = Field(default_factory=lambda: [0.0, 0.0, 0.0])
-    spin: Vec3 = Field(default_factory=lambda: [0.0, 0.0, 0.0])
+    translation: Velocity = Field(default_factory=lambda: [0.0, 0.0, 0.0])
+    spin: Spin = Field(default_factory=lambda: [0.0, 0.0, 0.0])
 
 
 class BlockSpec(_Model):
@@ -304,7 +335,7 @@ class PointLoadSpec(_Model):
     """A force (N) at a point of a block (block default: the one at `point`)."""
 
     point: Point
-    force: Vec3
+    force: Force
     block: Target | None = None
 
 
@@ -319,18 +350,18 @@ class BoundarySpec(_Model):
 class _BoltProperties(_Model):
     """What a rock bolt or cable is made of (SI units)."""
 
-    axial_stiffness: NonNegative = Field(
+    axial_stiffness: BoltStiffness = Field(
         3e7, description="N/m, axial spring of the whole free length (default: a 25 mm steel "
                          "bar 3 m long, EA/L); 0: a constant-force tendon")
-    shear_stiffness: NonNegative = Field(
+    shear_stiffness: BoltStiffness = Field(
         0.0, description="N/m, transverse spring at the head (default 0: a cable)")
-    pretension: NonNegative = Field(0.0, description="N, tension at installation")
-    capacity: Positive | None = Field(
+    pretension: BoltForce = Field(0.0, description="N, tension at installation")
+    capacity: BoltCapacity | None = Field(
         None, description="N, axial yield force (default: unlimited); |force| stays below it "
                           "and the excess becomes plastic elongation")
-    shear_capacity: Positive | None = Field(
+    shear_capacity: BoltCapacity | None = Field(
         None, description="N, transverse yield force (default: the axial capacity)")
-    rupture_displacement: Positive | None = Field(
+    rupture_displacement: Length | None = Field(
         None, description="m; the bolt breaks (and stops acting) when its two ends have "
                           "moved apart by more since installation (default: never)")
 
@@ -363,8 +394,8 @@ class BoltPatternSpec(_BoltProperties):
     Bolts are named `name_prefix` + 1, 2, ..."""
 
     origin: Point = Field(description="m, the head of the first bolt (on the face)")
-    face_normal: Vec3 = Field(description="outward normal of the face the heads are on")
-    row_direction: Vec3 = Field(description="a direction in the face along which a row runs")
+    face_normal: Direction = Field(description="outward normal of the face the heads are on")
+    row_direction: Direction = Field(description="a direction in the face along which a row runs")
     spacing: Length = Field(description="m between bolts along a row")
     row_spacing: Length | None = Field(None, description="m between rows (default: "
                                                            "spacing)")
@@ -409,14 +440,14 @@ class JointPressureSpec(_Model):
     joint given its own joint material), added to the phreatic surface's."""
 
     joint_material: Name
-    pressure: NonNegative = Field(description="Pa")
+    pressure: Pressure = Field(description="Pa")
 
 
 class WaterSpec(_Model):
     """Water in the joints: pressure normal to the faces where blocks touch (uplift on
     sliding planes, thrust in tension cracks), following the blocks as they move."""
 
-    unit_weight: Positive = Field(9810.0, description="N/m³, unit weight of water")
+    unit_weight: UnitWeight = Field(9810.0, description="N/m³, unit weight of water")
     phreatic_surface: PhreaticSurfaceSpec | None = None
     joint_pressures: list[JointPressureSpec] = Field(default_factory=list)
 
@@ -436,7 +467,8 @@ class GroundMotionSpec(_Model):
 
     time: list[float] | None = Field(None, description="s, non-decreasing")
     acceleration: list[Vec3] | None = Field(None, description="m/s², one (ax, ay, az) per time")
-    csv: str | None = Field(None, description="CSV text: t, ax, ay, az per row (s, m/s²)")
+    csv: Annotated[str, Field(pattern=MULTILINE)] | None = Field(
+        None, description="CSV text: t, ax, ay, az per row (s, m/s²)")
     scale: float = Field(1.0, description="factor on the accelerations")
 
     @model_validator(mode="after")
@@ -452,7 +484,7 @@ class GroundMotionSpec(_Model):
                 except ValueError:
                     if n == 1:
                         continue  # a header
-                    raise ValueError(f"csv line {n}: not numbers: {line!r}") from None
+                    raise ValueError(f"csv line {n}: not numbers: '{echo(line)}'") from None
                 if len(cells) != 4:
                     raise ValueError(f"csv line {n}: expected 4 values (t, ax, ay, az), "
                                      f"got {len(cells)}")
@@ -468,6 +500,9 @@ class GroundMotionSpec(_Model):
             raise ValueError("'time' must not decrease")
         if not all(math.isfinite(x) for x in self.time):
             raise ValueError("'time' must be finite")
+        check_all(self.time, RECORD_TIME, "time")
+        for k, a in enumerate(self.acceleration):  # as applied: times the scale
+            check_all([self.scale * x for x in a], ACCELERATION, f"scale × acceleration[{k}]")
         return self
 
 
@@ -486,7 +521,7 @@ class _TrialSpec(_Model):
     the end without slowing down, and holds (ending early) once every watched block is at
     rest with every contact stuck."""
 
-    observation_time: Positive = Field(_FOS.observation_time,
+    observation_time: Duration = Field(_FOS.observation_time,
                                        description="s simulated per trial at most")
     displacement_limit: Length | None = Field(
         None, description="m; a trial whose watched block moves more fails (default: "
@@ -515,8 +550,8 @@ class FactorOfSafetySpec(_TrialSpec):
 
     tolerance: Positive = Field(_FOS.tolerance, description="stop when the F bracket is "
                                                             "this narrow (relative)")
-    min_factor: Positive = Field(_FOS.min_factor, description="smallest F tried")
-    max_factor: Positive = Field(_FOS.max_factor, description="largest F tried")
+    min_factor: Factor = Field(_FOS.min_factor, description="smallest F tried")
+    max_factor: Factor = Field(_FOS.max_factor, description="largest F tried")
     joint_materials: list[Name] | None = Field(
         None, description="joint materials to weaken (default: all)"
     )
@@ -553,16 +588,17 @@ class AnalysisSpec(_Model):
 
     type: Literal["simulation", "factor_of_safety", "critical_seismic_coefficient",
                   "limit_equilibrium"] = "simulation"
-    duration: Positive = Field(_CONTROLS.duration, description="s simulated")
-    time_step: Positive = Field(_CONTROLS.time_step, description="s, initial time step")
-    min_time_step: Positive = Field(_CONTROLS.min_time_step,
+    duration: Duration = Field(_CONTROLS.duration, description="s simulated")
+    time_step: TimeStep = Field(_CONTROLS.time_step, description="s, initial time step")
+    min_time_step: MinTimeStep = Field(_CONTROLS.min_time_step,
                                     description="s; the run stops below this")
     penalty: Positive | None = Field(
         _CONTROLS.penalty,
         description="N/m, normal stiffness of one contact spring; default: derived from the "
                     "scene, the larger of E·L (stiffest rock, median block size) and 10 × "
-                    "2 m/Δt² (median block mass, time_step), so contacts act as constraints")
-    shear_penalty_ratio: Positive = Field(_CONTROLS.shear_penalty_ratio,
+                    "2 m/Δt² (median block mass, time_step), so contacts act as constraints; "
+                    "a given one must lie within 4 decades of that")
+    shear_penalty_ratio: ShearRatio = Field(_CONTROLS.shear_penalty_ratio,
                                           description="shear / normal spring stiffness")
     fixed_point_penalty: Positive | None = Field(None, description="N/m (default: engine's)")
     record_interval: Annotated[int, Field(ge=1)] = Field(_CONTROLS.record_interval,
@@ -628,6 +664,12 @@ class AnalysisSpec(_Model):
         _CONTROLS.sleep_time, description="s a block must stay quiet before it sleeps")
     factor_of_safety: FactorOfSafetySpec | None = None
     critical_seismic_coefficient: CriticalSeismicSpec | None = None
+    allow_unphysical: bool = Field(
+        False, description="accept numbers beyond the physical ranges (a density of "
+                           "100 to 30,000 kg/m³, gravity up to 100 m/s², a penalty within 4 "
+                           "decades of the derived one, a model up to 1e5 m, ...: "
+                           "docs/scene.md), up to 1,000 times beyond each end; for scaled "
+                           "models (a centrifuge's 100 g) and numerical studies")
 
     @model_validator(mode="after")
     def _times(self) -> AnalysisSpec:
@@ -665,8 +707,8 @@ class SlopeFaceSpec(_Model):
 class NormalSpec(_Model):
     """A normally distributed parameter: mean and standard deviation."""
 
-    mean: float
-    sd: Positive
+    mean: FrictionAngle
+    sd: physical(0, 90, "degrees", "a friction angle's spread", Field(gt=0))
 
 
 #: quantities that must stay strictly above their lowest bound
@@ -775,7 +817,30 @@ class SweepParameterSpec(_Model):
                                  "distribution, not lognormal")
             if not (self.mean is not None and self.mean > 0):
                 raise ValueError("a lognormal distribution needs a positive mean")
+        self._physical()
         return self
+
+    def _physical(self) -> None:
+        """The values, bounds, mean and spread within the physical range of the quantity
+        (schemas.physical; those with a fixed one), or its own range (kh, angles)."""
+        q = self.quantity
+        rng = SWEEP_RANGES.get(q)
+        lo, hi, _ = SWEEP_QUANTITIES[q]
+        for name in ("values", "low", "high", "mean"):
+            value = getattr(self, name)
+            if value is None:
+                continue
+            values = value if isinstance(value, list) else [value]
+            if rng is not None:
+                check_all(values, rng, name)
+            elif q in ("friction_angle", "kh") and name == "mean" \
+                    and not lo <= values[0] <= hi:
+                raise ValueError(f"mean {fmt_num(values[0])} is outside the range of {q} "
+                                 f"({fmt_num(lo)} to {fmt_num(hi)})")
+        width = (rng.hi - rng.lo) if rng is not None else (hi - lo)
+        if self.sd is not None and math.isfinite(width) and self.sd > width:
+            raise ValueError(f"sd {fmt_num(self.sd)} is wider than the whole range of {q} "
+                             f"({fmt_num(width)})")
 
 
 
@@ -855,7 +920,7 @@ class Scene(_Model):
     schema_version: Annotated[str, Field(max_length=20)] = Field(
         SCHEMA_VERSION, description="scene format version")
     name: Label = "scene"
-    description: Annotated[str, Field(max_length=20_000)] = ""
+    description: Text = ""
     materials: dict[Name, MaterialSpec] = Field(
         default_factory=dict,
         description="by name; none given: one granite-like 'rock' (2600 kg/m³, 10 GPa, 0.25)",
@@ -875,7 +940,7 @@ class Scene(_Model):
     blocks: list[BlockSpec] = Field(default_factory=list)
     block_pairs: list[BlockPairSpec] = Field(default_factory=list)
     boundary: BoundarySpec = Field(default_factory=BoundarySpec)
-    gravity: Vec3 = Field(default_factory=lambda: [0.0, 0.0, -9.81], description="m/s²")
+    gravity: Gravity = Field(default_factory=lambda: [0.0, 0.0, -9.81], description="m/s²")
     seismic: SeismicSpec | None = Field(
         None, description="pseudo-static seismic coefficients (none: no seismic load)")
     water: WaterSpec | None = Field(None, description="water in the joints (none: dry)")
@@ -895,6 +960,16 @@ class Scene(_Model):
     stages: list[StageSpec] = Field(
         default_factory=list, description="a staged run: what changes at each stage's start "
                                           "(analysis.duration is then their sum)")
+
+    @model_validator(mode="wrap")
+    @classmethod
+    def _ranges(cls, data: Any, handler: Any) -> Scene:
+        """Validate with the physical ranges the scene asks for (analysis.allow_unphysical,
+        read first: schemas.physical)."""
+        analysis = data.get("analysis") if isinstance(data, dict) else None
+        allowed = isinstance(analysis, dict) and analysis.get("allow_unphysical") is True
+        with unphysical_allowed(allowed):
+            return handler(data)
 
     @model_validator(mode="after")
     def _defaults(self) -> Scene:
@@ -1114,6 +1189,8 @@ def scene_problems(scene: Scene) -> list[dict[str, str]]:
               "azimuth the horizontal force points to (and kv, if any)")
 
     # sizes, before any heavy work
+    for problem in _extent_problems(scene):
+        p.add(problem["loc"], problem["msg"])
     nv = _count_vertices(scene)
     if nv > Limits.max_vertices:
         p.add("", f"the scene has {nv:,} vertices in all; the limit is {Limits.max_vertices:,}")
@@ -1140,6 +1217,24 @@ def scene_problems(scene: Scene) -> list[dict[str, str]]:
               f"duration / time_step = {steps:.3g} steps; the limit is {Limits.max_steps:,} "
               "(shorten the duration or enlarge the time step)")
     return p.items
+
+
+def _extent_problems(scene: Scene) -> list[dict[str, str]]:
+    """The explicit blocks and the domain (where its bounds are known before cutting)
+    spanning more than a model's physical size (schemas.physical.SIZE)."""
+    bounds = [_domain_bounds(scene)] if scene.domain is not None else []
+    if scene.blocks:
+        xs = [v for b in scene.blocks for v in b.vertices]
+        if xs:
+            bounds.append(([min(v[i] for v in xs) for i in range(3)],
+                           [max(v[i] for v in xs) for i in range(3)]))
+    bounds = [b for b in bounds if b is not None]
+    if not bounds:
+        return []
+    lows = [min(b[0][i] for b in bounds) for i in range(3)]
+    highs = [max(b[1][i] for b in bounds) for i in range(3)]
+    with unphysical_allowed(scene.analysis.allow_unphysical):
+        return extent_problems(lows, highs, "blocks" if scene.blocks else "domain")
 
 
 def _sweep_problems(scene: Scene, p: Problems, joint_material: Any) -> None:
@@ -1235,7 +1330,7 @@ def load_scene(source: str | Path | dict[str, Any]) -> Scene:
     data = _parse(source)
     if not isinstance(data, dict):
         raise SceneError([{"loc": "", "msg": "a scene must be a JSON object {...}"}])
-    problems = explicit_size_problems(data)
+    problems = unicode_problems(data) or explicit_size_problems(data)
     if problems:  # refused at once: validating 25,000 blocks field by field takes seconds
         raise SceneError(problems)
     try:

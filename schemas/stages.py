@@ -14,6 +14,7 @@ from pydantic import Field, model_validator
 
 from schemas.domains import _exactly_one, _Model
 from schemas.fields import Length, Name, Point, Point2
+from schemas.physical import Duration
 
 # BoxSpec, GroundMotionSpec, JointMaterialSpec, SeismicSpec, Target and WaterSpec are the
 # scene's own: scene.py resolves them (`model_rebuild`) once it has defined them
@@ -96,7 +97,7 @@ class StageSpec(_Model):
     else stays as the stage before left it)."""
 
     name: Name
-    duration: Positive = Field(description="s simulated in this stage")
+    duration: Duration = Field(description="s simulated in this stage")
     excavate: list[Name] = Field(default_factory=list,
                                  description="excavations (names) dug out as it starts")
     excavate_region: BoxSpec | None = Field(  # noqa: F821

@@ -3,7 +3,9 @@
 Example: `POLYDDA_DATA_DIR=/data POLYDDA_BACKEND=rq POLYDDA_REDIS_URL=redis://redis:6379/0`.
 `POLYDDA_API_KEYS`, `POLYDDA_ADMIN_KEYS` and `POLYDDA_CORS_ORIGINS` are comma-separated
 lists (empty API keys: no key needed, and every client sees only the jobs of its address;
-`polydda serve` then listens on loopback only, unless POLYDDA_ALLOW_OPEN_NETWORK=true).
+the app factory then serves loopback only, unless POLYDDA_ALLOW_OPEN_NETWORK=true).
+`POLYDDA_TRUSTED_PROXIES` lists the reverse proxies (addresses or networks) whose
+X-Forwarded-For and X-Forwarded-Proto are believed; empty (the default): nobody's.
 """
 
 from __future__ import annotations
@@ -101,10 +103,18 @@ class Settings(BaseSettings):
     s3_endpoint_url: str = Field("", description="S3 endpoint (MinIO: http://minio:9000); "
                                                  "empty: AWS")
     s3_region: str = Field("", description="S3 region (empty: boto3's default)")
+    trusted_proxies: Annotated[tuple[str, ...], NoDecode] = Field(
+        (), description="reverse proxies (IP addresses or networks, e.g. 127.0.0.1 or "
+                        "10.0.0.0/8) whose X-Forwarded-For names the client (for ownership "
+                        "without keys, rate limits, the wrong-key throttle and the access "
+                        "log) and whose X-Forwarded-Proto says the scheme; empty: the "
+                        "headers are ignored, every client is the address it connects from")
     allow_open_network: bool = Field(
-        False, description="let `polydda serve` listen beyond loopback without API keys "
-                           "(every client on the network may then submit jobs; each sees "
-                           "only the jobs of its own address)")
+        False, description="let the service serve without API keys where loopback is not "
+                           "certain: `polydda serve` on another address, or a launcher "
+                           "whose address the app factory cannot know (uvicorn --factory); "
+                           "every client that reaches it may then submit jobs, each sees "
+                           "only the jobs of its own address")
 
     @field_validator("api_keys", "admin_keys", mode="before")
     @classmethod
@@ -118,6 +128,26 @@ class Settings(BaseSettings):
     def _split_origins(cls, value: Any) -> Any:
         if isinstance(value, str):
             return tuple(o.strip() for o in value.split(",") if o.strip())
+        return value
+
+    @field_validator("trusted_proxies", mode="before")
+    @classmethod
+    def _split_proxies(cls, value: Any) -> Any:
+        if isinstance(value, str):
+            value = tuple(p.strip() for p in value.split(",") if p.strip())
+        return value
+
+    @field_validator("trusted_proxies")
+    @classmethod
+    def _proxy_networks(cls, value: tuple[str, ...]) -> tuple[str, ...]:
+        import ipaddress
+
+        for item in value:
+            try:
+                ipaddress.ip_network(item, strict=False)
+            except ValueError:
+                raise ValueError(f"{item!r} is not an IP address or network (e.g. "
+                                 "127.0.0.1, 10.0.0.0/8, ::1)") from None
         return value
 
     @property

@@ -311,11 +311,12 @@ def synthetic_job(data_dir: Path, n_blocks: int = 1000, n_steps: int = 100,
     return job.id, path
 
 
-def make_client(data_dir: Path, **settings: Any) -> Any:
+def make_client(data_dir: Path, peer: tuple[str, int] = ("testclient", 50000),
+                **settings: Any) -> Any:
     """An in-process client of a fresh app on `data_dir` (two workers, a short cancel
-    grace); `settings` override."""
+    grace), connecting from `peer`; `settings` override."""
     from service.api.app import create_app
     from service.settings import Settings
 
     kw: dict[str, Any] = {"data_dir": data_dir, "max_workers": 2, "cancel_grace": 0.5}
-    return TestClient(create_app(Settings(**(kw | settings))))
+    return TestClient(create_app(Settings(**(kw | settings)), listen="127.0.0.1"), client=peer)

@@ -243,7 +243,8 @@ def test_api_reference_lists_every_operation(site: Path) -> None:
     from service.api.app import create_app
 
     ids = _ids(site / "reference" / "api" / "index.html")
-    ops = {op["operationId"].lower() for item in create_app().openapi()["paths"].values()
+    ops = {op["operationId"].lower()
+           for item in create_app(listen="127.0.0.1").openapi()["paths"].values()
            for op in item.values() if isinstance(op, dict) and "operationId" in op}
     assert ops and ops <= ids, ops - ids
 

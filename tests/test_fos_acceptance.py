@@ -115,7 +115,8 @@ def test_a_quasi_static_scene_is_refused(tmp_path: Path,
     from service.settings import Settings
     from tests.service_helpers import TestClient
 
-    with TestClient(create_app(Settings(data_dir=tmp_path / "data", max_workers=1))) as c:
+    with TestClient(create_app(Settings(data_dir=tmp_path / "data", max_workers=1),
+                               listen="127.0.0.1")) as c:
         r = c.post("/processes/factor-of-safety/execution", json=scene)
         assert r.status_code == 422 and "analysis.mode" in r.text
         scene["analysis"].pop("mode")

@@ -285,7 +285,7 @@ def test_api_kinematics_process(tmp_path: Path) -> None:
     from service.settings import Settings
 
     settings = Settings(data_dir=tmp_path / "data", max_workers=1)
-    with TestClient(create_app(settings)) as c:
+    with TestClient(create_app(settings, listen="127.0.0.1")) as c:
         scene = wedge_scene(friction_angle=20)
         t0 = time.monotonic()
         r = c.post("/jobs", params={"process": "kinematics"}, json=scene)

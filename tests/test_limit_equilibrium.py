@@ -235,7 +235,8 @@ def test_api_process_and_its_refusal(tmp_path: Path) -> None:
     from tests.service_helpers import TestClient, wait_final
 
     scene = json.loads((EXAMPLES / "planar_tendon.json").read_text())
-    with TestClient(create_app(Settings(data_dir=tmp_path, max_workers=1))) as c:
+    with TestClient(create_app(Settings(data_dir=tmp_path, max_workers=1),
+                               listen="127.0.0.1")) as c:
         r = c.post("/processes/limit-equilibrium/execution", json=scene)
         assert r.status_code == 201, r.text
         assert wait_final(c, r.headers["Location"], 60)["status"] == "successful"

@@ -112,7 +112,8 @@ def test_critical_seismic_job_equals_the_cli(tmp_path: Path,
     assert main(["seismic", str(path), "--json", "--quiet"]) == 0
     cli = json.loads(capsys.readouterr().out)
     assert cli["critical_seismic_coefficient"] == pytest.approx(KC, rel=0.05)
-    with TestClient(create_app(Settings(data_dir=tmp_path / "data", max_workers=1))) as c:
+    with TestClient(create_app(Settings(data_dir=tmp_path / "data", max_workers=1),
+                               listen="127.0.0.1")) as c:
         r = c.post("/jobs", json=scene)
         assert r.status_code == 201, r.text
         assert r.json()["processID"] == "critical-seismic-coefficient"

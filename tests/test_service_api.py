@@ -413,7 +413,9 @@ def test_model_failure_says_so(client: TestClient) -> None:
 
 
 def test_a_killed_job_process_is_a_system_error(tmp_path: Path) -> None:
-    with make_client(tmp_path) as c:
+    """With one run allowed (POLYDDA_MAX_ATTEMPTS=1) a killed job process fails the job at
+    once, saying why; with more it runs again (test_service_hostile.py)."""
+    with make_client(tmp_path, max_attempts=1) as c:
         url = c.post("/jobs", json=cube_scene(duration=60)).headers["Location"]
         wait_until(lambda: c.get(url).json()["status"] == "running"
                    and job_row(tmp_path / "data", url.rsplit("/", 1)[1])["worker_pid"], 30,

@@ -76,7 +76,7 @@ def test_fos_job_equals_the_cli(tmp_path: Path, capsys: pytest.CaptureFixture[st
     assert cli["factor_of_safety"] == pytest.approx(expected, rel=0.03)
     assert cli["watch_blocks"] == ["cube"] and cli["joint_materials"] == ["rough"]
     settings = Settings(data_dir=tmp_path / "data", max_workers=1)
-    with TestClient(create_app(settings)) as c:
+    with TestClient(create_app(settings, listen="127.0.0.1")) as c:
         r = c.post("/jobs", json=scene)  # analysis.type picks the process
         assert r.status_code == 201, r.text
         assert r.json()["processID"] == "factor-of-safety"

@@ -241,11 +241,11 @@ def test_store_names_a_full_database_and_the_api_answers_507(tmp_path: Path,
 def test_an_outcome_that_cannot_be_written_is_retried(tmp_path: Path) -> None:
     """A job process ended while its status could not be written: the supervisor keeps
     the outcome it sent and writes it when it can (it used to forget the process and
-    leave the job running for ever)."""
+    leave the job running for ever). One run allowed: the lost job then fails."""
     from service.jobs.embedded import EmbeddedBackend
     from service.settings import Settings
 
-    settings = Settings(data_dir=tmp_path / "data")
+    settings = Settings(data_dir=tmp_path / "data", max_attempts=1)
     store = JobStore(settings.db_path)
     job, _ = store.submit(process="simulation", scene="{}", client="c", quota=10)
     assert store.claim(job.id)
@@ -464,11 +464,18 @@ def test_security_headers_and_a_csp_that_allows_exactly_the_inline_scripts(
 
 
 def test_key_cookie_is_secure_behind_tls(tmp_path: Path) -> None:
-    with make_client(tmp_path / "data", api_keys=frozenset({"k"})) as c:
+    """A trusted TLS-terminating proxy's X-Forwarded-Proto marks the cookie Secure; the
+    same header from anyone else is not believed (service.api.addresses)."""
+    with make_client(tmp_path / "data", peer=("10.0.0.2", 4000), api_keys=frozenset({"k"}),
+                     trusted_proxies=("10.0.0.2",)) as c:
         plain = c.get("/?f=html").text
         assert "polydda_key=" in plain and ";Secure" not in plain
         proxied = c.get("/?f=html", headers={"X-Forwarded-Proto": "https"}).text
         assert ";SameSite=Strict;Secure'" in proxied
+    with make_client(tmp_path / "data", peer=("10.0.0.3", 4000), api_keys=frozenset({"k"}),
+                     trusted_proxies=("10.0.0.2",)) as c:
+        forged = c.get("/?f=html", headers={"X-Forwarded-Proto": "https"}).text
+        assert ";Secure" not in forged
 
 
 def test_openapi_documents_401_and_429_where_keys_are_on(tmp_path: Path) -> None:

@@ -1,5 +1,8 @@
 """Property-based API testing from the OpenAPI spec (schemathesis) against a real server on
-its default settings, with every check (`--checks all`).
+its default settings, with every check (`--checks all`). The stateless run draws the
+`job_id` of the job operations from jobs made for it (a simulation and a limit-equilibrium
+job that have ended; DELETE from jobs of its own), so those operations answer with real
+results, not only 404s.
 
 Every generated request must get a documented answer: no 5xx, only documented status codes
 (ST103), responses that match the schema (problem+json for errors), invalid data rejected,
@@ -16,6 +19,7 @@ here too).
 
 from __future__ import annotations
 
+import json
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
@@ -55,15 +59,66 @@ def server(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Server]:
         yield srv
 
 
-def _config() -> Any:
+def _config(jobs: list[str] | None = None, doomed: list[str] | None = None) -> Any:
+    """The configuration; with `jobs`, the job operations' `job_id` is drawn from them
+    (DELETE's from `doomed`: what it removes is gone for the other operations)."""
     from schemathesis.config import SchemathesisConfig
 
-    return SchemathesisConfig.from_str(CONFIG)
+    text = CONFIG
+    if jobs:
+        text = _with_ids(text, jobs, doomed or jobs)
+    return SchemathesisConfig.from_str(text)
+
+
+#: the result files of the jobs the stateless run uses (service.jobs.processes)
+FILES = '"result.h5", "summary.json", "le.json"'
+
+
+def _with_ids(text: str, jobs: list[str], doomed: list[str]) -> str:
+    quoted = ", ".join(f'"{j}"' for j in jobs)
+    gone = ", ".join(f'"{j}"' for j in doomed)
+    # project settings go before the [[operations]] tables (TOML: a key after a table
+    # header belongs to that table)
+    return (f'parameters = {{ "path.job_id" = {{ dictionary = "jobs", probability = 0.9 }} }}\n'
+            f"dictionaries = {{ jobs = {{ values = [{quoted}] }}, "
+            f"doomed = {{ values = [{gone}] }}, files = {{ values = [{FILES}] }} }}\n"
+            + text + '''
+[[operations]]
+include-operation-id = ["dismissJob"]
+parameters = { "path.job_id" = { dictionary = "doomed", probability = 0.9 } }
+
+[[operations]]
+include-operation-id = ["getResultFile"]
+[operations.parameters]
+"path.job_id" = { dictionary = "jobs", probability = 0.9 }
+"path.name" = { dictionary = "files", probability = 0.8 }
+''')
+
+
+def _ended_jobs(url: str) -> tuple[list[str], list[str]]:
+    """A simulation and a limit-equilibrium job that have ended (the ids the stateless run
+    uses), and one more for DELETE to remove."""
+    import httpx
+
+    from tests.service_helpers import ROOT, cube_scene, wait_final
+
+    planar = json.loads((ROOT / "examples" / "planar_tendon.json").read_text())
+    with httpx.Client(base_url=url, timeout=60) as c:
+        urls = [c.post("/jobs", json=cube_scene(duration=0.01)).headers["Location"],
+                c.post("/processes/limit-equilibrium/execution", json=planar)
+                .headers["Location"]]
+        urls.append(c.post("/jobs", json=cube_scene(duration=0.01)).headers["Location"])
+        for job_url in urls:
+            assert wait_final(c, job_url, timeout=180)["status"] == "successful", job_url
+    ids = [u.rsplit("/", 1)[1] for u in urls]
+    return ids[:2], ids[2:]
 
 
 @pytest.fixture(scope="module")
 def api_schema(server: Server) -> object:
-    return schemathesis.openapi.from_url(server.url + "/openapi.json", config=_config())
+    jobs, doomed = _ended_jobs(server.url)
+    return schemathesis.openapi.from_url(server.url + "/openapi.json",
+                                         config=_config(jobs, doomed))
 
 
 schema = schemathesis.pytest.from_fixture("api_schema")
@@ -91,12 +146,26 @@ def _documented_422(case: Any, response: Any) -> None:
         assert [e["loc"] for e in doc["errors"]] == [loc], doc
 
 
+#: (operation, status) of every stateless call
+SEEN: list[tuple[str, int]] = []
+
+
 @schema.parametrize()
 @settings(max_examples=25, deadline=None, derandomize=True,
           suppress_health_check=list(HealthCheck))
 def test_api_answers_every_generated_request(case: object) -> None:
     response = case.call_and_validate(timeout=30)  # type: ignore[attr-defined]
     _documented_422(case, response)
+    SEEN.append((str(case.operation.definition.raw.get("operationId")),  # type: ignore[attr-defined]
+                 response.status_code))
+
+
+def test_the_job_operations_saw_real_jobs() -> None:
+    """With job ids drawn from real jobs, the job operations answered 2xx, not only 404."""
+    ok = {op for op, code in SEEN if 200 <= code < 300}
+    wanted = {"getJob", "getResults", "getContacts", "getFrames", "getResultFile",
+              "jobViewer", "jobReport", "jobEvents", "dismissJob"}
+    assert wanted <= ok, sorted(wanted - ok)
 
 
 def test_server_still_healthy(server: Server) -> None:

@@ -143,7 +143,8 @@ def test_api_sweep_process_equals_the_cli(tmp_path: Path,
     path.write_text(json.dumps(scene))
     assert main(["sweep", str(path), "--out", str(tmp_path / "cli"), "--json", "--quiet"]) == 0
     cli = json.loads(capsys.readouterr().out)
-    with TestClient(create_app(Settings(data_dir=tmp_path / "data", max_workers=1))) as c:
+    with TestClient(create_app(Settings(data_dir=tmp_path / "data", max_workers=1),
+                               listen="127.0.0.1")) as c:
         r = c.post("/jobs", params={"process": "sweep"}, json=scene)
         assert r.status_code == 201, r.text
         job = wait_final(c, r.headers["Location"])
@@ -186,7 +187,8 @@ def test_api_jobs_of_shares_merge_into_the_whole(tmp_path: Path) -> None:
     from tests.service_helpers import TestClient, wait_final
 
     docs = []
-    with TestClient(create_app(Settings(data_dir=tmp_path / "data", max_workers=2))) as c:
+    with TestClient(create_app(Settings(data_dir=tmp_path / "data", max_workers=2),
+                               listen="127.0.0.1")) as c:
         urls = [c.post("/jobs", params={"process": "sweep"}, json=scene).headers["Location"]
                 for scene in (sweep_scene(), sweep_scene(realisations=list(range(0, 50, 2))),
                               sweep_scene(realisations=list(range(1, 50, 2))))]
@@ -229,14 +231,14 @@ def test_requeued_sweep_job_redoes_no_realisation(tmp_path: Path) -> None:
 
     settings = Settings(data_dir=tmp_path / "data", max_workers=1)
     scene = sweep_scene(n=2000)
-    with TestClient(create_app(settings)) as c:
+    with TestClient(create_app(settings, listen="127.0.0.1")) as c:
         url = c.post("/jobs", params={"process": "sweep"}, json=scene).headers["Location"]
         sweeps = settings.data_dir / "sweeps"
         wait_until(lambda: len(list(sweeps.glob("*/*.json"))) > 100, 120, "realisations")
         (folder,) = sweeps.iterdir()
     before = {p.name: p.stat().st_mtime_ns for p in folder.glob("*.json")}
     assert 100 < len(before) < 2000
-    with TestClient(create_app(settings)) as c:
+    with TestClient(create_app(settings, listen="127.0.0.1")) as c:
         job = wait_final(c, url, timeout=600)
         assert job["status"] == "successful", job
         assert c.get(url + "/results").json()["sweep"]["done"] == 2000
@@ -261,7 +263,8 @@ def test_sweep_jobs_on_the_embedded_backend(tmp_path: Path) -> None:
     scene = sweep_scene(n=100)
     local = run_sweep(scene, spec_of_scene(scene), tmp_path / "local")
     seen: list[int] = []
-    with TestClient(create_app(Settings(data_dir=tmp_path / "data", max_workers=2))) as c:
+    with TestClient(create_app(Settings(data_dir=tmp_path / "data", max_workers=2),
+                               listen="127.0.0.1")) as c:
         doc = sweep_jobs(c, scene, 2, tmp_path / "out",
                          on_progress=lambda done, n, st: seen.append(done))
         assert [j["status"] for j in doc["jobs"]] == ["successful", "successful"]
@@ -429,7 +432,7 @@ def test_sweep_jobs_resubmit_a_share_whose_process_died(tmp_path: Path) -> None:
         before.update({p: p.stat().st_mtime_ns
                        for p in (settings.data_dir / "sweeps").glob("*/*.json")})
 
-    with TestClient(create_app(settings)) as c:
+    with TestClient(create_app(settings, listen="127.0.0.1")) as c:
         doc = sweep_jobs(c, scene, 2, tmp_path / "out", on_progress=kill_first, poll=0.2)
         assert killed and c.get(f"/jobs/{killed[0]}").json()["status"] == "failed"
     assert [j["status"] for j in doc["jobs"]] == ["successful", "successful"]

@@ -57,12 +57,19 @@ def _type(spec: dict[str, Any]) -> str:
     if "const" in spec:
         return f"`{json.dumps(spec['const'])}`"
     kind = spec.get("type", "any")
+    physical = ""
+    if "x-physical-range" in spec:  # schemas.physical
+        lo, hi = spec["x-physical-range"]
+        unit = f" {spec['x-unit']}" if spec.get("x-unit") else ""
+        what = "magnitude " if kind == "array" else ""
+        physical = f"; physical {what}range {lo:g} – {hi:g}{unit}"
     if kind == "array":
         n = ""
         if spec.get("minItems") is not None and spec.get("minItems") == spec.get("maxItems"):
             n = f"{spec['minItems']} × "
         items = spec.get("items")
-        return f"array of {n}{_type(items) if items else 'any'}"
+        text = f"array of {n}{_type(items) if items else 'any'}"
+        return f"{text} ({physical[2:]})" if physical else text
     if kind == "object" and isinstance(spec.get("additionalProperties"), dict):
         return f"map of name → {_type(spec['additionalProperties'])}"
     bounds = []
@@ -72,7 +79,9 @@ def _type(spec: dict[str, Any]) -> str:
             bounds.append(f"{sign} {spec[key]:g}")
     if isinstance(kind, list):
         kind = " or ".join(kind)
-    return f"{kind} ({', '.join(bounds)})" if bounds else str(kind)
+    if not bounds and physical:
+        return f"{kind} ({physical[2:]})"
+    return f"{kind} ({', '.join(bounds)}{physical})" if bounds else str(kind)
 
 
 def _default(spec: dict[str, Any], required: bool) -> str:
@@ -190,7 +199,7 @@ def cli_markdown() -> str:
 def _openapi() -> dict[str, Any]:
     from service.api.app import create_app
 
-    return create_app().openapi()
+    return create_app(listen="127.0.0.1").openapi()  # the API as served on loopback
 
 
 def _schema_type(spec: dict[str, Any]) -> str:

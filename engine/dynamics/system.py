@@ -15,7 +15,12 @@ from engine.dynamics import assembly as asm
 from engine.geometry.polyhedron import Polyhedron
 from engine.loads.bolts import BoltSet, bolt_set
 from engine.loads.water import Water
-from engine.model import AnalysisControls, Model
+from engine.model import (  # noqa: F401  (the penalty's rule, re-exported here)
+    PENALTY_INERTIA_RATIO,
+    AnalysisControls,
+    Model,
+    default_penalty,
+)
 from engine.tolerances import DEFAULT_TOLERANCES
 
 
@@ -113,30 +118,6 @@ def _stacked_vertices(polys: list[Polyhedron], c0: np.ndarray
     rel0 = (np.concatenate([p.vertices for p in polys]) - c0[block] if polys
             else np.zeros((0, 3)))
     return block, start, rel0
-
-
-#: the default penalty makes a contact spring this many times stiffer than the inertia a
-#: typical block opposes to a step's motion (2 m / Δt², the mass term of the step's
-#: equations): contacts then act as constraints within a step instead of cushions
-PENALTY_INERTIA_RATIO = 10.0
-
-
-def default_penalty(model: Model) -> float:
-    """The scene's contact penalty (N/m) when the user gives none: the larger of the rock's
-    own stiffness at block size, E L (E the stiffest movable material, L the median movable
-    block's size V^⅓), and PENALTY_INERTIA_RATIO × 2 m / Δt² (m the median movable block's
-    mass, Δt the asked time step); rounded to one significant figure."""
-    free = [b for b in model.blocks if not b.fixed] or list(model.blocks)
-    if not free:
-        return 1e10
-    volume = np.array([b.polyhedron.volume for b in free])
-    mass = volume * np.array([model.materials[b.material].density for b in free])
-    young = max(model.materials[b.material].young_modulus for b in free)
-    dt = model.controls.time_step
-    k = max(young * float(np.median(volume)) ** (1 / 3),
-            PENALTY_INERTIA_RATIO * 2.0 * float(np.median(mass)) / dt**2)
-    lead = 10.0 ** np.floor(np.log10(k))
-    return float(np.round(k / lead) * lead)
 
 
 def build_system(model: Model, adaptive_search: bool = True) -> BlockSystem:

@@ -3,7 +3,13 @@
 `create_app` assembles the API from service.api (problems, dependencies, submission,
 results, metrics, OpenAPI, routes) around one Settings object; the job table and the backend
 start with its lifespan, after the data directory's lock is taken (one server per data
-directory). Run with `serve(host, port)` or `uvicorn --factory service.api.app:create_app`.
+directory). Run with `serve(host, port)` (`polydda serve`) or
+`uvicorn --factory --no-proxy-headers service.api.app:create_app`.
+
+Without API keys the factory refuses to build the app unless it is certain to listen on
+loopback only, or `POLYDDA_ALLOW_OPEN_NETWORK` is set (:func:`network_guard`): `serve`
+tells it the address; a foreign launcher (uvicorn --factory, gunicorn) calls it with none,
+so there keys or the override are needed.
 """
 
 from __future__ import annotations
@@ -25,6 +31,7 @@ from fastapi.staticfiles import StaticFiles
 from prometheus_client import CollectorRegistry
 from starlette.concurrency import run_in_threadpool
 
+from service.api.addresses import ClientAddress, parse_networks
 from service.api.builder import router as builder_router
 from service.api.dependencies import RateLimiter, RootDep, StoreDep, _client
 from service.api.middleware import ErrorBoundary, HeadAsGet, RequestMetrics, SecurityHeaders
@@ -79,10 +86,36 @@ def _submission_state(app: FastAPI, settings: Settings) -> None:
     app.state.in_flight = InFlight()
 
 
-def create_app(settings: Settings | None = None, lock: DataDirLock | None = None) -> FastAPI:
-    """The FastAPI application. Its lifespan takes the data directory's lock (unless `lock`
-    is held already), opens the job table and starts the backend."""
+class OpenNetworkRefused(RuntimeError):
+    """The app would serve the network without API keys: why, and what to do."""
+
+
+def network_guard(settings: Settings, listen: str | None) -> None:
+    """OpenNetworkRefused unless the app may serve without keys where it listens: keys are
+    configured, the override is set, or `listen` (the address the server binds) is
+    loopback. Without `listen` (a launcher that does not say) loopback is not certain."""
+    if settings.keys_required or settings.allow_open_network:
+        return
+    if listen is not None and is_loopback(listen):
+        return
+    where = (f"to listen on {listen}" if listen is not None else
+             "to serve: the app factory cannot know the address its launcher listens on "
+             "(uvicorn --factory calls it without one), so loopback is not certain;")
+    raise OpenNetworkRefused(
+        f"refusing {where} without API keys: anyone who can reach it could submit jobs. "
+        "Set POLYDDA_API_KEYS (see docs/service-security.md), listen on 127.0.0.1 with "
+        "`polydda serve`, or set POLYDDA_ALLOW_OPEN_NETWORK=true")
+
+
+def create_app(settings: Settings | None = None, lock: DataDirLock | None = None, *,
+               listen: str | None = None) -> FastAPI:
+    """The FastAPI application (OpenNetworkRefused without keys unless `listen`, the
+    address its server binds, is loopback or the override is set: :func:`network_guard`;
+    an in-process client such as a TestClient reaches it from no network and passes a
+    loopback address). Its lifespan takes the data directory's lock (unless `lock` is
+    held already), opens the job table and starts the backend."""
     settings = settings or Settings()
+    network_guard(settings, listen)
 
     @asynccontextmanager
     async def lifespan(app: FastAPI) -> AsyncIterator[None]:
@@ -122,11 +155,13 @@ def create_app(settings: Settings | None = None, lock: DataDirLock | None = None
                                           "Idempotency-Key", "Range"],
                            expose_headers=["Location", "Retry-After", "Idempotent-Replayed",
                                            "Content-Range", "X-PolyDDA-Recovered"])
-    # added innermost first: ErrorBoundary wraps them all
-    app.add_middleware(SecurityHeaders)
+    # added innermost first: the security headers wrap them all (the error boundary's
+    # 500 has them too), the client's address is derived before any route reads it
     app.add_middleware(HeadAsGet)
+    app.add_middleware(ClientAddress, trusted=parse_networks(settings.trusted_proxies))
     app.add_middleware(RequestMetrics, registry=app.state.metrics)
     app.add_middleware(ErrorBoundary)
+    app.add_middleware(SecurityHeaders)
     app.mount("/static", StaticFiles(directory=STATIC_DIR, check_dir=False), name="static")
     app.include_router(router)
     app.include_router(builder_router)
@@ -206,10 +241,9 @@ def _service_routes(app: FastAPI, settings: Settings) -> None:
 
 
 def over_tls(request: Request) -> bool:
-    """True when the browser talks to the service over TLS: the request's scheme, or a
-    TLS-terminating proxy's X-Forwarded-Proto."""
-    proto = request.headers.get("x-forwarded-proto", "").split(",")[0].strip().lower()
-    return request.url.scheme in ("https", "wss") or proto == "https"
+    """True when the browser talks to the service over TLS: the request's scheme, which a
+    trusted TLS-terminating proxy's X-Forwarded-Proto sets (service.api.addresses)."""
+    return request.url.scheme in ("https", "wss")
 
 
 def home_page(request: Request, settings: Settings, store: JobStore, root: str) -> str:
@@ -244,28 +278,28 @@ def is_loopback(host: str) -> bool:
 
 def serve(host: str = "127.0.0.1", port: int = 8000, settings: Settings | None = None) -> int:
     """Run the service with uvicorn until interrupted (`polydda serve`); exit code 1 (one
-    line on stderr) when another server owns the data directory."""
+    line on stderr) when another server owns the data directory, 2 when the app factory
+    refuses `host` without keys (:func:`network_guard`)."""
     import uvicorn
 
     settings = settings or Settings()
-    if not settings.keys_required and not settings.allow_open_network \
-            and not is_loopback(host):
-        print(f"polydda serve: refusing to listen on {host} without API keys: anyone who "
-              "can reach it could submit jobs. Set POLYDDA_API_KEYS (see "
-              "docs/service-security.md), listen on 127.0.0.1, or set "
-              "POLYDDA_ALLOW_OPEN_NETWORK=true", file=sys.stderr)
-        return 2
     try:
         lock = DataDirLock(settings.data_dir).acquire()
     except DataDirBusy as exc:
         print(f"polydda serve: {exc}", file=sys.stderr)
         return 1
+    try:
+        app = create_app(settings, lock=lock, listen=host)
+    except OpenNetworkRefused as exc:
+        lock.release()
+        print(f"polydda serve: {exc}", file=sys.stderr)
+        return 2
     logging.basicConfig(level=logging.INFO,
                         format="%(asctime)s %(levelname)s %(name)s: %(message)s")
     try:
-        uvicorn.run(create_app(settings, lock=lock), host=host, port=port,
+        uvicorn.run(app, host=host, port=port,
                     timeout_graceful_shutdown=5, timeout_keep_alive=int(settings.keep_alive),
-                    log_level="info")
+                    log_level="info", proxy_headers=False)  # the app reads them itself
     finally:
         lock.release()
     return 0

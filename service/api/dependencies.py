@@ -18,6 +18,7 @@ from typing import Annotated, Any
 from fastapi import Depends, Header, Request, Security
 from fastapi.security import APIKeyHeader
 
+from schemas.errors import unicode_problems
 from service.api.problems import Problem, invalid_scene, no_such_job
 from service.jobs.backend import Backend
 from service.jobs.store import JobRecord, JobStore
@@ -104,6 +105,8 @@ KEY_COOKIE = "polydda_key"
 
 
 def _address(request: Request) -> str:
+    """The client's address as service.api.addresses derived it (a trusted proxy's
+    X-Forwarded-For, else the connection's peer)."""
     return request.client.host if request.client else "unknown"
 
 
@@ -242,7 +245,7 @@ async def _scene_body(request: Request, settings: SettingsDep) -> Any:
         raise invalid_scene([{"loc": "", "msg": "the request body is empty: send the scene "
                                                 "as a JSON object"}])
     try:
-        return json.loads(raw)
+        data = json.loads(raw)
     except UnicodeDecodeError:
         raise invalid_scene([{"loc": "", "msg": "not valid JSON: the body is not UTF-8"}]) \
             from None
@@ -255,6 +258,10 @@ async def _scene_body(request: Request, settings: SettingsDep) -> Any:
     except RecursionError:
         raise invalid_scene([{"loc": "", "msg": "not valid JSON: nested too deeply"}]) \
             from None
+    problems = unicode_problems(data)  # "\ud800" alone: JSON, but no text to store
+    if problems:
+        raise invalid_scene(problems)
+    return data
 
 
 SceneBody = Annotated[Any, Depends(_scene_body)]

@@ -5,6 +5,7 @@ internet needed)."""
 from __future__ import annotations
 
 import json
+import re
 from collections.abc import Iterable
 from datetime import UTC, datetime
 from html import escape
@@ -14,15 +15,20 @@ from service.jobs.processes import PROCESSES, RESULT_FILE
 from service.jobs.store import JobRecord
 
 VERSION = "0.1.0"
+#: characters no page shows raw (control characters but tab and line breaks, lone
+#: surrogates): a scene stored before they were refused shows U+FFFD in their place
+_UNPRINTABLE = re.compile(r"[\x00-\x08\x0b\x0c\x0e-\x1f\x7f\ud800-\udfff]")
 
 
 def _page(title: str, root: str, body: str, cls: str = "", head: str = "") -> str:
-    return (f'<!doctype html>\n<html lang="en"><head><meta charset="utf-8">'
-            f'<meta name="viewport" content="width=device-width, initial-scale=1">'
-            f"<title>{escape(title)}</title>"
-            f'<link rel="icon" type="image/png" href="{root}/static/favicon-32x32.png">'
-            f'<link rel="stylesheet" href="{root}/static/pages.css">{head}</head>'
-            f'<body class="{cls}">{body}</body></html>\n')
+    """A whole page around `body`, with no unprintable character left in it."""
+    return _UNPRINTABLE.sub(
+        "\ufffd", f'<!doctype html>\n<html lang="en"><head><meta charset="utf-8">'
+                  f'<meta name="viewport" content="width=device-width, initial-scale=1">'
+                  f"<title>{escape(title)}</title>"
+                  f'<link rel="icon" type="image/png" href="{root}/static/favicon-32x32.png">'
+                  f'<link rel="stylesheet" href="{root}/static/pages.css">{head}</head>'
+                  f'<body class="{cls}">{body}</body></html>\n')
 
 
 def _bar(root: str, extra: str = "") -> str:

@@ -10,7 +10,7 @@ from typing import Any
 from fastapi import FastAPI, Request
 from fastapi.exceptions import RequestValidationError
 from fastapi.responses import JSONResponse, Response
-from pydantic import BaseModel
+from pydantic import BaseModel, Field
 from starlette.exceptions import HTTPException as StarletteHTTPException
 from starlette.requests import ClientDisconnect
 from starlette.routing import Mount
@@ -19,6 +19,11 @@ log = logging.getLogger("service.api")
 
 PROBLEM_TYPE = "/problems/"
 PROBLEM_JSON = "application/problem+json"
+#: errors a problem document lists at most (`more_errors` counts the rest); with the
+#: bounds on each field path and message (schemas.errors) a document stays under 50 kB
+MAX_ERRORS = 50
+#: characters of a problem's detail at most
+MAX_DETAIL_CHARS = 2000
 
 
 class Problem(Exception):
@@ -32,12 +37,22 @@ class Problem(Exception):
         self.errors, self.headers = errors, headers
 
     def response(self, instance: str = "") -> JSONResponse:
+        """The problem document, bounded whatever the request held: at most MAX_ERRORS
+        errors (`more_errors` says how many more), each path and message and the detail
+        cut short and printable (schemas.errors.bounded)."""
+        from schemas.errors import MAX_LOC_CHARS, MAX_MSG_CHARS, bounded
+
         body: dict[str, Any] = {"type": PROBLEM_TYPE + self.slug, "title": self.title,
-                                "status": self.status, "detail": self.detail}
+                                "status": self.status,
+                                "detail": bounded(self.detail, MAX_DETAIL_CHARS)}
         if instance:
-            body["instance"] = instance
+            body["instance"] = bounded(instance, MAX_LOC_CHARS)
         if self.errors is not None:
-            body["errors"] = self.errors
+            body["errors"] = [{"loc": bounded(str(e.get("loc", "")), MAX_LOC_CHARS),
+                               "msg": bounded(str(e.get("msg", "")), MAX_MSG_CHARS)}
+                              for e in self.errors[:MAX_ERRORS]]
+            if len(self.errors) > MAX_ERRORS:
+                body["more_errors"] = len(self.errors) - MAX_ERRORS
         return JSONResponse(body, status_code=self.status, headers=self.headers,
                             media_type=PROBLEM_JSON)
 
@@ -58,6 +73,9 @@ class ProblemDoc(BaseModel):
     detail: str = ""
     instance: str | None = None
     errors: list[ProblemError] | None = None
+    more_errors: int | None = Field(
+        None, description="errors found beyond those listed (a document lists at most "
+                          f"{MAX_ERRORS})")
 
 
 def invalid_scene(errors: list[dict[str, str]]) -> Problem:
@@ -121,7 +139,9 @@ def install_handlers(app: FastAPI) -> None:
 
     @app.exception_handler(RequestValidationError)
     async def _invalid(request: Request, exc: RequestValidationError) -> Response:
-        errors = [{"loc": ".".join(str(p) for p in e.get("loc", ())),
+        from schemas.errors import ECHO_CHARS, echo
+
+        errors = [{"loc": ".".join(echo(str(p), ECHO_CHARS) for p in e.get("loc", ())),
                    "msg": str(e.get("msg", ""))} for e in exc.errors()]
         return Problem(422, "invalid-request", "Invalid request",
                        "; ".join(f"{e['loc']}: {e['msg']}" for e in errors[:3]),

@@ -77,9 +77,15 @@ def artifact(job: JobRecord, settings: Settings, name: str) -> Path:
     ensure_local(job, settings)
     path = settings.job_dir(job.id) / name
     if name not in PROCESSES[job.process].artifacts or not path.is_file():
+        from schemas.errors import echo
+
+        have = [a for a in PROCESSES[job.process].artifacts
+                if (settings.job_dir(job.id) / a).is_file()]
         raise Problem(404, "no-such-result", "No such result",
-                      f"job {job.id} has no result '{name}'"
-                      + (f" (it {job.status}: {job.message})" if job.message else ""))
+                      f"job {job.id} has no result '{echo(name)}'; the job is {job.status}"
+                      + (f" ({job.message})" if job.message else "")
+                      + (f"; its results: {', '.join(have)}" if have else
+                         "; it has no result files"))
     return path
 
 

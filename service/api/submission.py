@@ -168,7 +168,7 @@ class InFlight:
         with self._lock:
             n = self._n.get(client, 0)
             if active + n + 1 > quota:
-                raise quota_exceeded(active + n, quota)
+                raise quota_exceeded(active, quota, checking=n)
             self._n[client] = n + 1
         try:
             yield
@@ -179,11 +179,15 @@ class InFlight:
                     del self._n[client]
 
 
-def quota_exceeded(active: int, quota: int) -> Problem:
+def quota_exceeded(active: int, quota: int, checking: int = 0) -> Problem:
+    """429: the client has `active` unfinished jobs and `checking` other submissions being
+    checked (each counted apart: a submission being checked is not a job yet)."""
+    jobs = f"{active} unfinished job{'s' if active != 1 else ''} (accepted or running)"
+    more = f" and {checking} more submission{'s' if checking != 1 else ''} being checked" \
+        if checking else ""
     return Problem(429, "quota-exceeded", "Too many unfinished jobs",
-                   f"you have {active} jobs accepted, running or being checked; the limit is "
-                   f"{quota}. Wait for one to finish or dismiss one.",
-                   headers={"Retry-After": "5"})
+                   f"you have {jobs}{more}; the limit is {quota} at once. Wait for one to "
+                   "finish or dismiss one.", headers={"Retry-After": "5"})
 
 
 def _replay(store: JobStore, client: Client, key: str | None, digest: str) -> Any:

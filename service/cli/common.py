@@ -14,6 +14,8 @@ if TYPE_CHECKING:
     from schemas.errors import SceneError
 
 EXIT_OK, EXIT_IO, EXIT_SCENE, EXIT_RUN = 0, 1, 2, 3
+#: problems of a scene printed at most (then how many more there are)
+MAX_PROBLEM_LINES = 50
 
 
 def print_json(doc: Any) -> None:
@@ -23,9 +25,13 @@ def print_json(doc: Any) -> None:
 
 
 def scene_failed(exc: SceneError) -> int:
-    """The scene's problems on stderr, one per line; exit code 2."""
-    for line in exc.lines():
+    """The scene's problems on stderr, one per line (each bounded by SceneError, at most
+    MAX_PROBLEM_LINES of them, then how many more); exit code 2."""
+    lines = exc.lines()
+    for line in lines[:MAX_PROBLEM_LINES]:
         print(line, file=sys.stderr)
+    if len(lines) > MAX_PROBLEM_LINES:
+        print(f"… and {len(lines) - MAX_PROBLEM_LINES:,} more problems", file=sys.stderr)
     return EXIT_SCENE
 
 

@@ -68,7 +68,7 @@ def cmd_view(args: argparse.Namespace) -> int:
                   f"(not {args.host}); use polydda serve with API keys to share it",
                   file=sys.stderr)
             return EXIT_SCENE
-        app, page, work = _builder_service()
+        app, page, work = _builder_service(args.host)
     else:
         result = open_result_file("view", args.result)
         if isinstance(result, int):
@@ -110,16 +110,18 @@ def cmd_view(args: argparse.Namespace) -> int:
     return EXIT_OK
 
 
-def _builder_service() -> tuple[object, str, Path]:
-    """The REST service on a temporary data directory (its jobs go when `view` stops)
-    and the path of its builder page."""
+def _builder_service(host: str) -> tuple[object, str, Path]:
+    """The REST service on a temporary data directory (its jobs go when `view` stops),
+    listening on `host` (loopback: `view` refuses any other), and the path of its builder
+    page."""
     import tempfile
 
     from service.api.app import create_app
     from service.settings import Settings
 
     work = Path(tempfile.mkdtemp(prefix="polydda-view-"))
-    return create_app(Settings(data_dir=work, min_free_bytes=0)), "/builder", work
+    return (create_app(Settings(data_dir=work, min_free_bytes=0), listen=host), "/builder",
+            work)
 
 
 def cmd_report(args: argparse.Namespace) -> int:

@@ -150,7 +150,9 @@ class Backend:
         self.wake()
 
     def requeue_or_fail(self, job: JobRecord, why: str) -> None:
-        """A running job lost its worker: back to the queue, or failed after max attempts."""
+        """A running job was lost (its process or worker killed, the service stopped under
+        it): back to the queue, or failed (kind system) once it has run `max_attempts`
+        times; dismissed if it was being cancelled. The one retry policy of every backend."""
         now = time.time()
         if job.cancel_requested is not None:
             self.store.update(job.id, only_if=[RUNNING], status=DISMISSED, finished=now,
@@ -158,7 +160,8 @@ class Backend:
         elif job.attempts >= self.settings.max_attempts:
             self.store.update(
                 job.id, only_if=[RUNNING], status="failed", finished=now, error_kind="system",
-                message=f"system error: {why}, {job.attempts} times; not retried again")
+                message=f"system error: {why}, {job.attempts} time"
+                        f"{'s' if job.attempts != 1 else ''}; not retried again")
         else:
             self.store.update(job.id, only_if=[RUNNING], status=ACCEPTED, worker_pid=None,
                               message=f"re-queued: {why} (attempt {job.attempts} of "

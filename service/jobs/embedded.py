@@ -7,6 +7,11 @@ worker environment (`Settings.worker_env`: one OMP/BLAS thread) already set, so 
 never loads with more threads, whatever the API process imported. It writes its progress
 and outcome to the job table itself and stops by itself when the API process that started
 it is gone; the next API process re-queues what was left running.
+
+A job whose process ended without an outcome (killed, crashed) is lost as a job is when
+the API process stops under it: one policy for both (Backend.requeue_or_fail), back to the
+queue until it has run `max_attempts` times, then failed, kind `system`. Only a process
+that died while the data disk was full fails at once (no retry cures that).
 """
 
 from __future__ import annotations
@@ -179,7 +184,8 @@ class EmbeddedBackend(Backend):
         #: job id -> read end of the pipe its process sends its outcome through
         self.outcome_pipes: dict[str, int] = {}
         #: outcomes of ended job processes not yet written to the job table (a full
-        #: disk): retried every tick until they are
+        #: disk): retried every tick until they are; `{"lost": why}` for a process that
+        #: ended without one (its job is re-queued or failed: Backend.requeue_or_fail)
         self.pending: dict[str, dict[str, Any]] = {}
 
     def recover(self) -> None:
@@ -262,10 +268,12 @@ class EmbeddedBackend(Backend):
         if job is not None and job.cancel_requested is not None:
             return {"status": DISMISSED, "finished": now,
                     "message": "cancelled: the job process was stopped; partial results kept"}
-        why = " while the data directory's disk was full" if self._disk_full_now() else ""
-        return {"status": FAILED, "finished": now, "error_kind": "system",
-                "message": f"system error: the job process ended unexpectedly "
-                           f"({_exit_text(proc.returncode)}){why}; resubmit the job"}
+        why = f"its job process ended unexpectedly ({_exit_text(proc.returncode)})"
+        if self._disk_full_now():  # a cause no retry cures: failed, as a full disk is
+            return {"status": FAILED, "finished": now, "error_kind": "system",
+                    "message": f"system error: {why} while the data directory's disk was "
+                               "full; not retried"}
+        return {"lost": why}
 
     def _disk_full_now(self) -> bool:
         try:
@@ -278,7 +286,12 @@ class EmbeddedBackend(Backend):
         a job that recorded its own outcome keeps it); keep those that fail for later."""
         for job_id, values in list(self.pending.items()):
             try:
-                self.store.update(job_id, only_if=[RUNNING], **values)
+                if "lost" in values:  # no outcome: the policy of a lost job
+                    job = self.store.get(job_id)
+                    if job is not None and job.status == RUNNING:
+                        self.requeue_or_fail(job, values["lost"])
+                else:
+                    self.store.update(job_id, only_if=[RUNNING], **values)
             except sqlite3.Error as exc:
                 log.warning("outcome of job %s not written yet (%s); retrying", job_id, exc)
                 continue

@@ -18,7 +18,7 @@ import json
 import logging
 import time
 from collections import Counter
-from typing import TYPE_CHECKING, Any
+from typing import Any, Protocol
 
 from service.documents import write_json_atomic
 from service.jobs.processes import SWEEPS_DIR
@@ -32,11 +32,21 @@ from service.jobs.store import (
     JobRecord,
     JobStore,
 )
-
-if TYPE_CHECKING:  # a parameter's type only: the backends call into this module
-    from service.jobs.backend import Backend
+from service.settings import Settings
 
 log = logging.getLogger(__name__)
+
+
+class JobQueue(Protocol):
+    """What a refresh needs of a backend (service.jobs.backend.Backend, which calls into
+    this module: it is named here by what it does, so neither module imports the other's
+    type): its settings, to queue a job, to cancel one."""
+
+    settings: Settings
+
+    def submitted(self, job: JobRecord) -> None: ...
+
+    def cancel(self, job_id: str) -> None: ...
 
 #: the most shares a sweep may be fanned out in
 MAX_SHARES = 256
@@ -60,7 +70,7 @@ def _share_size(store: JobStore, child: JobRecord) -> int:
     return len(json.loads(store.scene(child.id))["sweep"]["realisations"])
 
 
-def _resubmit_lost(store: JobStore, backend: Backend, parent: JobRecord,
+def _resubmit_lost(store: JobStore, backend: JobQueue, parent: JobRecord,
                    kids: list[JobRecord]) -> list[JobRecord]:
     """The parent's current children, a share whose child failed for a system reason
     submitted again (unless the parent is being cancelled)."""
@@ -86,7 +96,7 @@ def _resubmit_lost(store: JobStore, backend: Backend, parent: JobRecord,
     return out
 
 
-def _merged(store: JobStore, backend: Backend, kids: list[JobRecord]) -> dict[str, Any] | None:
+def _merged(store: JobStore, backend: JobQueue, kids: list[JobRecord]) -> dict[str, Any] | None:
     """The children's sweep documents merged (those that have one), with the list of
     jobs; None when no child left one."""
     from engine.analyses.sweep import merge_documents
@@ -108,7 +118,7 @@ def _merged(store: JobStore, backend: Backend, kids: list[JobRecord]) -> dict[st
     return doc
 
 
-def _state(store: JobStore, backend: Backend, parent: JobRecord,
+def _state(store: JobStore, backend: JobQueue, parent: JobRecord,
            kids: list[JobRecord]) -> dict[str, Any]:
     """The parent's status, progress and message from its current children."""
     sizes = [_share_size(store, k) for k in kids]
@@ -138,7 +148,7 @@ def _state(store: JobStore, backend: Backend, parent: JobRecord,
     return values | {"status": SUCCESSFUL, "progress": 100.0}
 
 
-def refresh(store: JobStore, backend: Backend, parent: JobRecord) -> JobRecord:
+def refresh(store: JobStore, backend: JobQueue, parent: JobRecord) -> JobRecord:
     """Bring a parent job's row up to date with its children (see the module); the row."""
     if not parent.is_parent or parent.is_final:
         return parent
@@ -166,7 +176,7 @@ def refresh(store: JobStore, backend: Backend, parent: JobRecord) -> JobRecord:
     return parent
 
 
-def refresh_all(store: JobStore, backend: Backend) -> None:
+def refresh_all(store: JobStore, backend: JobQueue) -> None:
     """Refresh every unfinished parent job (the supervisor's round)."""
     for parent in store.active_parents():
         try:
@@ -175,13 +185,13 @@ def refresh_all(store: JobStore, backend: Backend) -> None:
             log.exception("sweep job %s not refreshed", parent.id)
 
 
-def current(store: JobStore, backend: Backend, job_id: str) -> JobRecord | None:
+def current(store: JobStore, backend: JobQueue, job_id: str) -> JobRecord | None:
     """A job's row now (a parent's refreshed first)."""
     job = store.get(job_id)
     return None if job is None else refresh(store, backend, job)
 
 
-def cancel(store: JobStore, backend: Backend, job: JobRecord) -> None:
+def cancel(store: JobStore, backend: JobQueue, job: JobRecord) -> None:
     """Cancel a job; for a parent, every unfinished child (it ends when they have)."""
     if not job.is_parent:
         backend.cancel(job.id)
@@ -193,7 +203,7 @@ def cancel(store: JobStore, backend: Backend, job: JobRecord) -> None:
             backend.cancel(child_id)
 
 
-def so_far(store: JobStore, backend: Backend, job: JobRecord) -> dict[str, Any]:
+def so_far(store: JobStore, backend: JobQueue, job: JobRecord) -> dict[str, Any]:
     """The aggregate of a running parent's realisations recorded so far."""
     from service.sweep import document_so_far
 

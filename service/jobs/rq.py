@@ -255,12 +255,16 @@ class RqBackend(Backend):
             return out
 
     def _failed(self, job: JobRecord, rq_job: Any, now: float) -> None:
-        """RQ says the job's process failed (its function raised, or the process was
-        killed while its worker lived): a system error, as a killed embedded process."""
+        """RQ says the running job's process failed (its function raised, or the process
+        was killed while its worker lived): lost, as a killed embedded process is
+        (Backend.requeue_or_fail: re-queued until it has run max_attempts times). A job
+        that died before it was seen running has no run to count: failed, kind system."""
+        why = f"the process running it died ({self._failure(rq_job)})"
+        if job.status == RUNNING:
+            self.requeue_or_fail(job, why)
+            return
         self.store.update(job.id, only_if=ACTIVE, status=FAILED, finished=now,
-                          error_kind="system",
-                          message="system error: the process running this job died "
-                                  f"({self._failure(rq_job)}); resubmit the job")
+                          error_kind="system", message=f"system error: {why}")
 
     def worker_lost(self, job: JobRecord) -> None:
         """A running job whose heartbeat stopped (its worker was killed, or its host
