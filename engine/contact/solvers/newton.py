@@ -187,13 +187,14 @@ def _setup(system: BlockSystem, state: State, contacts: ContactSet, patches: Con
 
 def _first_round(system: BlockSystem, state: State, contacts: ContactSet, st: _Step
                  ) -> _Round:
-    """The first round: each contact's normal force from the last step (by key; a new one
-    from its start gap), no rotation correction, its bond as it starts the step."""
+    """The first round: each contact's normal spring force from the last step (by key; a
+    new one from its start gap, or its block pair's share), no rotation correction, its
+    bond as it starts the step."""
     mem = state.memory
     rows = mem.find(contacts.key)
     nlag = system.kn * np.maximum(-st.d0, 0.0)
     again = rows >= 0
-    old = np.maximum(np.einsum("ij,ij->i", mem.force, _memory_normals(mem, contacts, rows)), 0.0)
+    old = system.kn * np.maximum(-mem.gap, 0.0) * (mem.mode != OPEN)  # the springs' N
     if np.any(again):
         nlag[again] = old[rows[again]]
     _share_pairs(system, mem, contacts, rows, old, nlag)
@@ -201,17 +202,6 @@ def _first_round(system: BlockSystem, state: State, contacts: ContactSet, st: _S
     broken = strong & ~bonded
     stick = (st.patch >= 0) & ~broken & (st.cohesion > 0)
     return _Round(nlag, np.zeros(len(contacts)), broken, stick)
-
-
-def _memory_normals(mem: object, contacts: ContactSet, rows: np.ndarray) -> np.ndarray:
-    """Each memory contact's normal `(m, 3)`: the step's normal of the contact found again
-    as it (the memory keeps forces, not normals), else its force's direction."""
-    f = mem.force
-    length = np.linalg.norm(f, axis=1)
-    out = np.where((length > 0)[:, None], f / np.maximum(length, 1e-300)[:, None], 0.0)
-    again = rows >= 0
-    out[rows[again]] = contacts.normal[again]
-    return out
 
 
 def _share_pairs(system: BlockSystem, mem: object, contacts: ContactSet, rows: np.ndarray,
@@ -386,10 +376,15 @@ def _newton(st: _Step, rnd: _Round, x: np.ndarray, ls: NewtonSystems) -> tuple[n
 
 def _follow(st: _Step, rnd: _Round, x: np.ndarray) -> _Round:
     """The round with every cap's normal force, and the gaps' rotation corrections, those
-    at `x`."""
+    at `x`: the normal spring's force (a dashpot resists an approach; it does not press
+    the faces together, and in the cap it would make friction viscous: a block starting
+    to slide on a plane was held back a step by its settling dashpots)."""
     out = dataclasses.replace(rnd)
     _rotation(st, out, x)
-    out.nlag = np.maximum(_normal_forces(st, out, x)[1], 0.0)
+    base, _, _ = out.law(st)
+    g = base + np.einsum("ij,ij->i", kern.relative_motion(x, st.row, st.bi, st.bj, st.ti,
+                                                           st.tj), st.normal)
+    out.nlag = st.kn * np.maximum(-g, 0.0)
     return out
 
 
