@@ -183,7 +183,7 @@ def test_polydda_view_serves_the_builder(tmp_path: Path) -> None:
         doc = c.post("/builder/preview", json=scene.data).json()
         assert doc["count"] == 2
     assert build_parser().parse_args(["view"]).result is None
-    app, path, work = _builder_service()
+    app, path, work = _builder_service("127.0.0.1")
     try:
         with TestClient(app) as c:
             assert path == "/builder" and "id='run'" in c.get(path).text

@@ -1,7 +1,7 @@
 """The step as one minimisation (`contact_solver: "newton"`) against the analytic cases:
-test_simulation's validation tests (VALIDATION.md 1, 3–7, the pendulum, tunnelling, cut
+test_simulation's validation tests (docs/validation.md cases 1, 3–7, the pendulum, tunnelling, cut
 rock masses, the energy balance) run again with Newton's method as the contact solver, and
-the cases its design answers for (STEP-AS-POTENTIAL.md): no creep at 1 and 10 ms, a
+the cases its design answers for (the issue's prototype): no creep at 1 and 10 ms, a
 ten-cube stack's forces to 1e-6 at 1 ms, Δt held on cut rock masses."""
 
 from __future__ import annotations
@@ -67,7 +67,7 @@ def test_the_fixture_runs_newton() -> None:
 def test_no_creep_at_a_large_time_step(dt: float) -> None:
     """φ 35° on 30° (VALIDATION 1b) at Δt 1 and 10 ms: down the dip within 1 µm after 1 s
     (the shear springs' W sin α / ks and the start's settling), and not growing over the
-    last half (STEP-AS-POTENTIAL's prototype: 0.92 and 0.88 µm)."""
+    last half (the prototype Newton solve measured 0.92 and 0.88 µm)."""
     sim = Simulation(incline_model(35.0, duration=1.0, dt=dt))
     c0 = sim.state.centroid[1].copy()
     half = None

@@ -1,7 +1,7 @@
 """Every analysis under every contact solver, where the solvers' own features meet the rest
 (issue 37): sleeping islands through strength-reduction and seismic trials, sweeps and
 stages; the state's per-block arrays through a stage, a checkpoint and a resume; cohesion at
-a large Δt. Answers are Hoek & Bray's limit equilibrium, within 2 % (VALIDATION.md's
+a large Δt. Answers are Hoek & Bray's limit equilibrium, within 2 % (docs/validation.md's
 tolerance for a factor of safety and kh_c)."""
 
 from __future__ import annotations

@@ -113,7 +113,7 @@ def test_warm_up_groups_kernel_modules_that_call_each_other() -> None:
     found = groups()
     assert sorted(m for g in found for m in g) == modules
     # the open-close kernels call the transform kernels: one group
-    together = next(g for g in found if "engine.contact._open_close_kernels" in g)
+    together = next(g for g in found if "engine.contact.solvers._open_close_kernels" in g)
     assert "engine.geometry._transform_kernels" in together
 
 

@@ -256,9 +256,10 @@ def result_meta(r: Any) -> dict[str, Any]:
         # the run's largest energy (J): an energy round-off against it reads as 0
         import numpy as np
 
-        energies = [np.abs(np.asarray(v, float)) for v in r.energies().values()]
-        meta["energy_scale"] = max((float(np.nanmax(v)) for v in energies if v.size),
-                                   default=0.0)
+        # (synthetic or partial files may hold only NaN: they add nothing)
+        finite = [np.abs(v[np.isfinite(v)]) for v in
+                  (np.asarray(e, float) for e in r.energies().values())]
+        meta["energy_scale"] = max((float(v.max()) for v in finite if v.size), default=0.0)
     return meta
 
 

@@ -4,7 +4,7 @@ curvature of the step potential along a Newton direction (the exact line search)
 scattered onto the blocks, the Hessian's block-sparse values, and the second-order gap
 correction of the step's exact rotation.
 
-A contact's terms (THEORY.md; ../shared/STEP-AS-POTENTIAL.md): the gap `g = d0 + δ + n·dr`
+A contact's terms (docs/theory.md, docs/contact-solvers.md): the gap `g = d0 + δ + n·dr`
 of its relative displacement `dr` (δ: the exact rotation's correction, held during a
 Newton solve); a normal spring `½ kn ⟨−g⟩²` (`½ kn g²` while its bond holds tension) and a
 dashpot `½ c' ⟨a − g⟩²` that resists the approach since the step's start or entrance

@@ -1,6 +1,6 @@
 """The step as one minimisation (`analysis.contact_solver: "newton"`): Shi's DDA derives a
 step from the minimum of its total potential energy; here that minimum is found by Newton's
-method instead of the open-close iteration (../shared/STEP-AS-POTENTIAL.md).
+method instead of the open-close iteration (docs/contact-solvers.md).
 
 The step's block displacements x minimise
 
