@@ -126,3 +126,21 @@ def block_vertices(centroid: np.ndarray, affine: np.ndarray, vertex_block: np.nd
             out[v, i] = centroid[b, i] + affine[b, i, 0] * x + affine[b, i, 1] * y \
                 + affine[b, i, 2] * z
     return out
+
+
+@nb.njit(cache=True)
+def advance_blocks(d: np.ndarray, dt: float, v0: np.ndarray, fixed: np.ndarray,
+                   centroid: np.ndarray, affine: np.ndarray, rotation: np.ndarray,
+                   vertex_block: np.ndarray, rel0: np.ndarray
+                   ) -> tuple[np.ndarray, np.ndarray]:
+    """The update of a step's solution `d (n, 12)` of `dt` s in one pass: the blocks moved
+    in place (:func:`move_blocks`), the end velocities `(n, 12)` of the constant-acceleration
+    scheme `2 d / Δt − v0` (zero for `fixed` blocks) and the moved vertices `(V, 3)`
+    (:func:`block_vertices`), so that the next step's detection finds them computed."""
+    move_blocks(d, centroid, affine, rotation)
+    n, w = d.shape
+    v1 = np.empty((n, w))
+    for k in range(n):
+        for j in range(w):
+            v1[k, j] = 0.0 if fixed[k] else 2.0 * d[k, j] / dt - v0[k, j]
+    return v1, block_vertices(centroid, affine, vertex_block, rel0)
