@@ -270,29 +270,30 @@ def piece_pairs(block_pairs: np.ndarray, piece_block: np.ndarray, p_lo: np.ndarr
 
 
 @njit(**_OPTS)
-def _select_planes(cand: np.ndarray, cvalid: np.ndarray, cface: np.ndarray, nc: int,
-                   dx: np.ndarray, dy: np.ndarray, ndy: int, delta: np.ndarray,
-                   entrance: float, snap: float, ang: float, adm: np.ndarray,
-                   adm_gap: np.ndarray) -> int:
+def _select_planes(cand: np.ndarray, cface: np.ndarray, nc: int, dx: np.ndarray, ndx: int,
+                   dy: np.ndarray, ndy: int, delta: np.ndarray, entrance: float, snap: float,
+                   ang: float, adm: np.ndarray, adm_gap: np.ndarray) -> int:
     """Shortest exit among candidate planes `cand[:nc]` (normals from Y into X); fills
     `adm[:nc]` and the gaps `adm_gap[:nc]`, returns the best index or -1 when none is
     admissible.
 
-    A plane is admissible when X's cone directions `dx (D, 3)` lie on its + side and
+    A plane is admissible when X's cone directions `dx[:ndx]` lie on its + side and
     Y's `dy[:ndy]` on its - side. Among admissible planes the largest gap `delta . n`
     wins; near-ties go to face planes, then to the largest clearance of the off-plane
     cone directions (the rule of :func:`engine.contact.detection` `_select_planes`).
+    The candidates are all valid (written by :func:`_face_candidates` and
+    :func:`_cross_candidates`), the directions those of real neighbours (the zero rows
+    that pad them would change no test).
     """
     gap = adm_gap
     top = -np.inf
     found = False
     for c in range(nc):
-        ok = cvalid[c]
-        if ok:
-            for k in range(len(dx)):
-                if _dot_mm(cand[c], dx[k]) < -entrance:
-                    ok = False
-                    break
+        ok = True
+        for k in range(ndx):
+            if _dot_mm(cand[c], dx[k]) < -entrance:
+                ok = False
+                break
         if ok:
             for k in range(ndy):
                 if -_dot_mm(cand[c], dy[k]) < -entrance:
@@ -312,7 +313,7 @@ def _select_planes(cand: np.ndarray, cvalid: np.ndarray, cface: np.ndarray, nc: 
         score = -1.0
         if adm[c] and gap[c] >= top - snap:
             clear = np.inf
-            for k in range(len(dx)):
+            for k in range(ndx):
                 v = _dot_mm(cand[c], dx[k])
                 if v > ang and v < clear:
                     clear = v
@@ -328,56 +329,52 @@ def _select_planes(cand: np.ndarray, cvalid: np.ndarray, cface: np.ndarray, nc: 
 
 
 @njit(**_OPTS)
-def _cross_candidates(dx: np.ndarray, rx: np.ndarray, ey: np.ndarray, ry: np.ndarray,
-                      ney: int, parallel: float, cand: np.ndarray, cvalid: np.ndarray,
+def _cross_candidates(dx: np.ndarray, ndx: int, rx: np.ndarray, ey: np.ndarray,
+                      ry: np.ndarray, ney: int, parallel: float, cand: np.ndarray,
                       cface: np.ndarray, ctag: np.ndarray, at: int) -> int:
-    """Planes through one real edge direction of X (`dx (D, 3)`, mask `rx`) and one of
-    Y (`ey[:ney]`, mask `ry`), signed so X is on +; written from `cand[at]` in
-    (X direction, Y direction) order. Returns the next free index."""
+    """Planes through one real edge direction of X (`dx[:ndx]`, mask `rx`) and one of
+    Y (`ey[:ney]`, mask `ry`), signed so X is on +; the valid ones (not through parallel
+    edges) written from `cand[at]` in (X direction, Y direction) order. Returns the next
+    free index."""
     s0 = s1 = s2 = 0.0
-    for k in range(len(dx)):
+    for k in range(ndx):
         s0 += dx[k, 0]
         s1 += dx[k, 1]
         s2 += dx[k, 2]
     lim = np.sqrt(2.0 * parallel)
-    for a in range(len(dx)):
+    for a in range(ndx):
+        if not rx[a]:
+            continue
         for b in range(ney):
+            if not ry[b]:
+                continue
             c = cand[at]
             _cross(dx[a], ey[b], c)
             n = _norm(c)
-            ok = rx[a] and ry[b] and n > lim
-            cvalid[at] = ok
+            if not n > lim:
+                continue
             cface[at] = False
             ctag[at] = -1
-            if ok:
+            for j in range(3):
+                c[j] /= n
+            if (c[0] * s0 + c[2] * s2) + c[1] * s1 < 0:
                 for j in range(3):
-                    c[j] /= n
-                if (c[0] * s0 + c[2] * s2) + c[1] * s1 < 0:
-                    for j in range(3):
-                        c[j] = -c[j]
-            else:
-                c[:] = 0.0
+                    c[j] = -c[j]
             at += 1
     return at
 
 
 @njit(**_OPTS)
-def _face_candidates(pv_faces: np.ndarray, f_normal: np.ndarray, f_tag: np.ndarray, pv: int,
-                     sign: float, cand: np.ndarray, cvalid: np.ndarray, cface: np.ndarray,
-                     ctag: np.ndarray, at: int) -> int:
+def _face_candidates(pv_faces: np.ndarray, pv_nfaces: np.ndarray, f_normal: np.ndarray,
+                     f_tag: np.ndarray, pv: int, sign: float, cand: np.ndarray,
+                     cface: np.ndarray, ctag: np.ndarray, at: int) -> int:
     """Normals (times `sign`) of the real faces at piece vertex `pv`, from `cand[at]`."""
-    for k in range(pv_faces.shape[1]):
+    for k in range(pv_nfaces[pv]):
         f = pv_faces[pv, k]
-        ok = f >= 0
-        cvalid[at] = ok
-        cface[at] = ok
-        if ok:
-            for j in range(3):
-                cand[at, j] = f_normal[f, j] * sign
-            ctag[at] = f_tag[f]
-        else:
-            cand[at] = 0.0
-            ctag[at] = -1
+        cface[at] = True
+        for j in range(3):
+            cand[at, j] = f_normal[f, j] * sign
+        ctag[at] = f_tag[f]
         at += 1
     return at
 
@@ -550,6 +547,8 @@ class SceneTopology(NamedTuple):
     pv_surface: np.ndarray
     pv_nb_real: np.ndarray
     pv_faces: np.ndarray
+    pv_ndir: np.ndarray
+    pv_nfaces: np.ndarray
 
 
 class SceneGeometry(NamedTuple):
@@ -580,14 +579,14 @@ def narrow_phase(pa: np.ndarray, pb: np.ndarray, x: np.ndarray, topo: SceneTopol
     (module docstring)."""
     (v_surface, v_local, piece_block, piece_local, f_start, f_count, e_start, e_count,
      pv_start, pv_count, f_vtx, f_nxt, f_edge, f_valid, f_local, f_tag, f_real, e_vtx,
-     e_faces, e_local, e_real, e_slot, pv_vtx, pv_surface, pv_nb_real, pv_faces) = topo
+     e_faces, e_local, e_real, e_slot, pv_vtx, pv_surface, pv_nb_real, pv_faces, pv_ndir,
+     pv_nfaces) = topo
     f_normal, f_offset, e_dir, e_in, e_flat, pv_dir, p_lo, p_hi = geo
     dmax, dfmax = pv_dir.shape[1], pv_faces.shape[1]
     # a plane through edges lies on a face when within the entrance angle of it
     cos_tag = np.sqrt(1.0 - entrance * entrance)
     cmax = max(2 + dfmax + dmax, 2 * dfmax + dmax * dmax)
     cand = np.zeros((cmax, 3))
-    cvalid = np.zeros(cmax, dtype=np.bool_)
     cface = np.zeros(cmax, dtype=np.bool_)
     ctag = np.zeros(cmax, dtype=np.int64)
     adm = np.zeros(cmax, dtype=np.bool_)
@@ -616,6 +615,15 @@ def narrow_phase(pa: np.ndarray, pb: np.ndarray, x: np.ndarray, topo: SceneTopol
     vv_a = np.zeros(maxpv, dtype=np.int64)
     vv_b = np.zeros(maxpv, dtype=np.int64)
     vv_gap = np.zeros(maxpv)
+    # the winners' candidates: the vertex-edge one of the vertex at hand, the vertex-vertex
+    # ones of the pair (emitted without evaluating them again)
+    ve_cand, ve_adm = np.zeros((cmax, 3)), np.zeros(cmax, dtype=np.bool_)
+    ve_face, ve_tag, ve_proj = np.zeros(cmax, dtype=np.bool_), np.zeros(cmax, dtype=np.int64), \
+        np.zeros(3)
+    vv_cand, vv_adm = np.zeros((maxpv, cmax, 3)), np.zeros((maxpv, cmax), dtype=np.bool_)
+    vv_face, vv_tag = np.zeros((maxpv, cmax), dtype=np.bool_), np.zeros((maxpv, cmax),
+                                                                     dtype=np.int64)
+    vv_nc, vv_best = np.zeros(maxpv, dtype=np.int64), np.zeros(maxpv, dtype=np.int64)
     slab_s = np.zeros(2)
     slab_c = np.zeros(2)
     close = np.zeros((2, maxpv), dtype=np.bool_)
@@ -738,18 +746,24 @@ def narrow_phase(pa: np.ndarray, pb: np.ndarray, x: np.ndarray, topo: SceneTopol
                     continue
                 pv = pv_start[xp] + lv
                 xv = x[pv_vtx[pv]]
-                best_e, best_gap = -1, -np.inf
+                best_e, best_gap, best_nc, best_c = -1, -np.inf, 0, -1
                 for ie in range(ne):
-                    if not _within_segment(xv, x, e_vtx, e_dir, edges[ie], r):
+                    inside, length = _vertex_edge_foot(edges[ie], xv, x, v_surface, e_vtx,
+                                                       e_dir, snap, proj, delta)
+                    if not inside or not _within_segment(xv, x, e_vtx, e_dir, edges[ie], r):
                         continue
                     gap, nc, best = _vertex_edge_plane(
-                        edges[ie], pv, x, v_surface, e_vtx, e_dir, e_faces, e_in, f_normal,
-                        f_tag, pv_vtx, pv_faces, pv_dir, pv_nb_real, r, snap, ang, parallel,
-                        entrance, cand, cvalid, cface, ctag, adm, adm_gap, dy, ry, proj, delta)
+                        edges[ie], pv, length, e_dir, e_faces, e_in, f_normal, f_tag,
+                        pv_faces, pv_nfaces, pv_dir, pv_ndir, pv_nb_real, r, snap, ang,
+                        parallel, entrance, cand, cface, ctag, adm, adm_gap, dy, ry, delta)
                     # ties within snap go to the first edge (collinear edges split by a
                     # seam point): the choice must not depend on round-off
                     if best >= 0 and gap > best_gap + snap:
-                        best_e, best_gap = ie, gap
+                        best_e, best_gap, best_nc, best_c = ie, gap, nc, best
+                        _keep_candidates(nc, cand, adm, cface, ctag, ve_cand, ve_adm, ve_face,
+                                         ve_tag)
+                        for j in range(3):
+                            ve_proj[j] = proj[j]
                 if best_e < 0:
                     continue
                 # no deeper than the pair's shallowest face exit: an edge within reach
@@ -758,19 +772,17 @@ def narrow_phase(pa: np.ndarray, pb: np.ndarray, x: np.ndarray, topo: SceneTopol
                 if best_gap < -snap and best_gap < exit_gap - snap:
                     continue
                 e = edges[best_e]
-                gap, nc, best = _vertex_edge_plane(
-                    e, pv, x, v_surface, e_vtx, e_dir, e_faces, e_in, f_normal, f_tag, pv_vtx,
-                    pv_faces, pv_dir, pv_nb_real, r, snap, ang, parallel, entrance, cand,
-                    cvalid, cface, ctag, adm, adm_gap, dy, ry, proj, delta)
                 q0 = q
-                q = _copy_unique(cand, adm, nc, parallel, ukeep, out_c, q, side == 1)
+                q = _copy_unique(ve_cand, ve_adm, best_nc, parallel, ukeep, out_c, q,
+                                 side == 1)
                 v = pv_vtx[pv]
-                tag = ctag[best] if cface[best] else _plane_tag(
-                    pv_faces[pv], e_faces[e], f_tag, f_normal, cand[best], cos_tag)
+                tag = ve_tag[best_c] if ve_face[best_c] else _plane_tag(
+                    pv_faces[pv], e_faces[e], f_tag, f_normal, ve_cand[best_c], cos_tag)
                 _emit(ri, rf, k, bi, bj, VERTEX_EDGE,
                       feature_code(piece_local[xp], FEATURE_VERTEX, v_local[v]),
                       feature_code(piece_local[yp], FEATURE_EDGE, e_local[e]),
-                      tag, v, side == 1, q - q0, pair, xv, proj, cand[best], gap)
+                      tag, v, side == 1, q - q0, pair, xv, ve_proj, ve_cand[best_c],
+                      best_gap)
                 k += 1
                 taken[side, lv] = True
         # ---- crossing edge-edge
@@ -845,10 +857,14 @@ def narrow_phase(pa: np.ndarray, pb: np.ndarray, x: np.ndarray, topo: SceneTopol
                     continue
                 vb = pv_start[b_p] + lb
                 gap, nc, best = _vertex_vertex_plane(
-                    va, vb, x, pv_vtx, f_normal, f_tag, pv_faces, pv_dir, pv_nb_real, r, snap,
-                    ang, parallel, entrance, cand, cvalid, cface, ctag, adm, adm_gap, delta)
+                    va, vb, x, pv_vtx, f_normal, f_tag, pv_faces, pv_nfaces, pv_dir, pv_ndir,
+                    pv_nb_real, r, snap, ang, parallel, entrance, cand, cface, ctag, adm,
+                    adm_gap, delta)
                 if best >= 0 and gap > best_gap + snap:  # ties: the first vertex
                     best_b, best_gap = vb, gap
+                    vv_nc[m], vv_best[m] = nc, best
+                    _keep_candidates(nc, cand, adm, cface, ctag, vv_cand[m], vv_adm[m],
+                                     vv_face[m], vv_tag[m])
             # no deeper than the pair's shallowest face exit (as vertex-edge)
             if best_b >= 0 and not (best_gap < -snap and best_gap < exit_gap - snap):
                 vv_a[m], vv_b[m], vv_gap[m] = va, best_b, best_gap
@@ -863,20 +879,17 @@ def narrow_phase(pa: np.ndarray, pb: np.ndarray, x: np.ndarray, topo: SceneTopol
                     break
             if not keep:
                 continue
-            va, vb = vv_a[s_], vv_b[s_]
-            gap, nc, best = _vertex_vertex_plane(
-                va, vb, x, pv_vtx, f_normal, f_tag, pv_faces, pv_dir, pv_nb_real, r, snap, ang,
-                parallel, entrance, cand, cvalid, cface, ctag, adm, adm_gap, delta)
+            va, vb, nc, best = vv_a[s_], vv_b[s_], vv_nc[s_], vv_best[s_]
             ri, rf, out_c = _reserve(ri, rf, out_c, k, q, 1, nc)
             q0 = q
-            q = _copy_unique(cand, adm, nc, parallel, ukeep, out_c, q, False)
-            tag = ctag[best] if cface[best] else _plane_tag(
-                pv_faces[va], pv_faces[vb], f_tag, f_normal, cand[best], cos_tag)
+            q = _copy_unique(vv_cand[s_], vv_adm[s_], nc, parallel, ukeep, out_c, q, False)
+            tag = vv_tag[s_, best] if vv_face[s_, best] else _plane_tag(
+                pv_faces[va], pv_faces[vb], f_tag, f_normal, vv_cand[s_, best], cos_tag)
             _emit(ri, rf, k, bi, bj, VERTEX_VERTEX,
                   feature_code(piece_local[a_p], FEATURE_VERTEX, v_local[pv_vtx[va]]),
                   feature_code(piece_local[b_p], FEATURE_VERTEX, v_local[pv_vtx[vb]]),
                   tag, pv_vtx[va], False, q - q0, pair,
-                  x[pv_vtx[va]], x[pv_vtx[vb]], cand[best], gap)
+                  x[pv_vtx[va]], x[pv_vtx[vb]], vv_cand[s_, best], vv_gap[s_])
             k += 1
     return ri[:k], rf[:k], out_c[:q]
 
@@ -945,20 +958,12 @@ def _within_segment(p: np.ndarray, x: np.ndarray, e_vtx: np.ndarray, e_dir: np.n
 
 
 @njit(**_OPTS)
-def _vertex_edge_plane(e: int, pv: int, x: np.ndarray, v_surface: np.ndarray,
-                       e_vtx: np.ndarray, e_dir: np.ndarray, e_faces: np.ndarray,
-                       e_in: np.ndarray, f_normal: np.ndarray, f_tag: np.ndarray,
-                       pv_vtx: np.ndarray, pv_faces: np.ndarray, pv_dir: np.ndarray,
-                       pv_nb_real: np.ndarray, r: float, snap: float, ang: float,
-                       parallel: float, entrance: float, cand: np.ndarray,
-                       cvalid: np.ndarray, cface: np.ndarray, ctag: np.ndarray,
-                       adm: np.ndarray, adm_gap: np.ndarray, dy: np.ndarray,
-                       ry: np.ndarray, proj: np.ndarray,
-                       delta: np.ndarray) -> tuple[float, int, int]:
-    """Vertex `pv` (of X) against the interior of edge `e` (of Y): `(gap, candidates,
-    best)` with best = -1 when it is no contact; fills `proj` (the foot on the edge) and
-    the candidate scratch arrays."""
-    xv = x[pv_vtx[pv]]
+def _vertex_edge_foot(e: int, xv: np.ndarray, x: np.ndarray, v_surface: np.ndarray,
+                      e_vtx: np.ndarray, e_dir: np.ndarray, snap: float, proj: np.ndarray,
+                      delta: np.ndarray) -> tuple[bool, float]:
+    """The foot of the point `xv` on edge `e`'s line: fills `proj` and `delta = xv − proj`;
+    returns whether the foot is inside the edge (:func:`_inside_edge`) and the edge's
+    length. The cheap first test of a vertex against an edge."""
     a, u = x[e_vtx[e, 0]], e_dir[e]
     length = _norm(u)
     for j in range(3):
@@ -967,27 +972,43 @@ def _vertex_edge_plane(e: int, pv: int, x: np.ndarray, v_surface: np.ndarray,
     for j in range(3):
         proj[j] = a[j] + t * u[j]
         delta[j] = xv[j] - proj[j]
-    if not _inside_edge(v_surface, e_vtx, e, t, length, snap):
-        return -np.inf, 0, -1
+    return _inside_edge(v_surface, e_vtx, e, t, length, snap), length
+
+
+@njit(**_OPTS)
+def _vertex_edge_plane(e: int, pv: int, length: float, e_dir: np.ndarray,
+                       e_faces: np.ndarray, e_in: np.ndarray, f_normal: np.ndarray,
+                       f_tag: np.ndarray, pv_faces: np.ndarray, pv_nfaces: np.ndarray,
+                       pv_dir: np.ndarray, pv_ndir: np.ndarray, pv_nb_real: np.ndarray,
+                       r: float, snap: float, ang: float, parallel: float, entrance: float,
+                       cand: np.ndarray, cface: np.ndarray, ctag: np.ndarray,
+                       adm: np.ndarray, adm_gap: np.ndarray, dy: np.ndarray,
+                       ry: np.ndarray, delta: np.ndarray) -> tuple[float, int, int]:
+    """Vertex `pv` (of X) against the interior of edge `e` (of Y) of `length`, its foot
+    inside the edge at `delta` from the vertex (:func:`_vertex_edge_foot`): `(gap,
+    candidates, best)` with best = -1 when it is no contact; fills the candidate scratch
+    arrays."""
     if not _norm(delta) < r:
         return -np.inf, 0, -1
     for c in range(2):
         f = e_faces[e, c]
         cand[c] = f_normal[f]
-        cvalid[c] = True
         cface[c] = True
         ctag[c] = f_tag[f]
-    nc = _face_candidates(pv_faces, f_normal, f_tag, pv, -1.0, cand, cvalid, cface, ctag, 2)
+    nc = _face_candidates(pv_faces, pv_nfaces, f_normal, f_tag, pv, -1.0, cand, cface, ctag,
+                          2)
+    u = e_dir[e]
     for j in range(3):
         dy[0, j] = u[j] / length
         dy[1, j] = -dy[0, j]
         dy[2, j] = e_in[e, 0, j]
         dy[3, j] = e_in[e, 1, j]
     ry[0] = True
-    nc = _cross_candidates(pv_dir[pv], pv_nb_real[pv], dy, ry, 1, parallel, cand, cvalid,
-                           cface, ctag, nc)
-    best = _select_planes(cand, cvalid, cface, nc, pv_dir[pv], dy, 4, delta, entrance, snap,
-                          ang, adm, adm_gap)
+    nd = pv_ndir[pv]
+    nc = _cross_candidates(pv_dir[pv], nd, pv_nb_real[pv], dy, ry, 1, parallel, cand, cface,
+                           ctag, nc)
+    best = _select_planes(cand, cface, nc, pv_dir[pv], nd, dy, 4, delta, entrance, snap, ang,
+                          adm, adm_gap)
     if best < 0:
         return -np.inf, nc, -1
     return _dot(delta, cand[best]), nc, best
@@ -996,11 +1017,11 @@ def _vertex_edge_plane(e: int, pv: int, x: np.ndarray, v_surface: np.ndarray,
 @njit(**_OPTS)
 def _vertex_vertex_plane(va: int, vb: int, x: np.ndarray, pv_vtx: np.ndarray,
                          f_normal: np.ndarray, f_tag: np.ndarray, pv_faces: np.ndarray,
-                         pv_dir: np.ndarray, pv_nb_real: np.ndarray, r: float, snap: float,
-                         ang: float, parallel: float, entrance: float, cand: np.ndarray,
-                         cvalid: np.ndarray, cface: np.ndarray, ctag: np.ndarray,
-                         adm: np.ndarray, adm_gap: np.ndarray, delta: np.ndarray
-                         ) -> tuple[float, int, int]:
+                         pv_nfaces: np.ndarray, pv_dir: np.ndarray, pv_ndir: np.ndarray,
+                         pv_nb_real: np.ndarray, r: float, snap: float, ang: float,
+                         parallel: float, entrance: float, cand: np.ndarray,
+                         cface: np.ndarray, ctag: np.ndarray, adm: np.ndarray,
+                         adm_gap: np.ndarray, delta: np.ndarray) -> tuple[float, int, int]:
     """Vertex `va` (of block i's piece) against vertex `vb` (of block j's): `(gap,
     candidates, best)` with best = -1 when it is no contact."""
     xa, xb = x[pv_vtx[va]], x[pv_vtx[vb]]
@@ -1008,16 +1029,32 @@ def _vertex_vertex_plane(va: int, vb: int, x: np.ndarray, pv_vtx: np.ndarray,
         delta[j] = xa[j] - xb[j]
     if not _norm(delta) < r:
         return -np.inf, 0, -1
-    nc = _face_candidates(pv_faces, f_normal, f_tag, vb, 1.0, cand, cvalid, cface, ctag, 0)
-    nc = _face_candidates(pv_faces, f_normal, f_tag, va, -1.0, cand, cvalid, cface, ctag, nc)
+    nc = _face_candidates(pv_faces, pv_nfaces, f_normal, f_tag, vb, 1.0, cand, cface, ctag, 0)
+    nc = _face_candidates(pv_faces, pv_nfaces, f_normal, f_tag, va, -1.0, cand, cface, ctag,
+                          nc)
     dy = pv_dir[vb]
-    nc = _cross_candidates(pv_dir[va], pv_nb_real[va], dy, pv_nb_real[vb], len(dy), parallel,
-                           cand, cvalid, cface, ctag, nc)
-    best = _select_planes(cand, cvalid, cface, nc, pv_dir[va], dy, len(dy), delta, entrance,
-                          snap, ang, adm, adm_gap)
+    na, nb = pv_ndir[va], pv_ndir[vb]
+    nc = _cross_candidates(pv_dir[va], na, pv_nb_real[va], dy, pv_nb_real[vb], nb, parallel,
+                           cand, cface, ctag, nc)
+    best = _select_planes(cand, cface, nc, pv_dir[va], na, dy, nb, delta, entrance, snap, ang,
+                          adm, adm_gap)
     if best < 0:
         return -np.inf, nc, -1
     return _dot(delta, cand[best]), nc, best
+
+
+@njit(**_OPTS)
+def _keep_candidates(nc: int, cand: np.ndarray, adm: np.ndarray, cface: np.ndarray,
+                     ctag: np.ndarray, k_cand: np.ndarray, k_adm: np.ndarray,
+                     k_face: np.ndarray, k_tag: np.ndarray) -> None:
+    """Copy the first `nc` candidates and what the plane selection made of them into the
+    `k_*` arrays (the winner's, so that emitting it needs no second evaluation)."""
+    for c in range(nc):
+        for j in range(3):
+            k_cand[c, j] = cand[c, j]
+        k_adm[c] = adm[c]
+        k_face[c] = cface[c]
+        k_tag[c] = ctag[c]
 
 
 @njit(**_OPTS)

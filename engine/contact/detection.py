@@ -222,6 +222,8 @@ class _Scene:
     pv_nb: np.ndarray  # (V, D) g, -1 pad
     pv_nb_real: np.ndarray
     pv_faces: np.ndarray  # (V, Df) global faces, -1 pad
+    pv_ndir: np.ndarray  # (V,) neighbours (the first ones of pv_nb; the rest pad)
+    pv_nfaces: np.ndarray  # (V,) real faces (the first ones of pv_faces)
 
     @cached_property
     def topology(self) -> kern.SceneTopology:
@@ -286,6 +288,8 @@ def _build_scene(blocks: Sequence[Polyhedron]) -> _Scene:
     fs, fc = starts(f_count)
     es, ec = starts(e_count)
     ps, pc = starts(pv_count)
+    pv_nb = _cat_padded(pvnb, -1, voffs)
+    pv_faces = _cat_padded(pvf, -1, foffs)
     return _Scene(
         nv=vo, block_piece0=np.searchsorted(np.asarray(pblock, dtype=_I64),
                                             np.arange(len(blocks))),
@@ -302,8 +306,9 @@ def _build_scene(blocks: Sequence[Polyhedron]) -> _Scene:
         e_vtx=np.concatenate(ev), e_faces=np.concatenate(ef), e_local=np.concatenate(eloc),
         e_real=np.concatenate(ereal), e_slot=np.concatenate(eslot),
         pv_vtx=np.concatenate(pvv), pv_surface=np.concatenate(pvs),
-        pv_nb=_cat_padded(pvnb, -1, voffs), pv_nb_real=_cat_padded(pvnbr, False),
-        pv_faces=_cat_padded(pvf, -1, foffs),
+        pv_nb=pv_nb, pv_nb_real=_cat_padded(pvnbr, False), pv_faces=pv_faces,
+        pv_ndir=(pv_nb >= 0).sum(axis=1).astype(_I64),
+        pv_nfaces=(pv_faces >= 0).sum(axis=1).astype(_I64),
     )
 
 
