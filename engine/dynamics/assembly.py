@@ -10,6 +10,7 @@ blocks and pairs in contact, not the number of contact points.
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 
 import numpy as np
@@ -142,6 +143,15 @@ class SystemPlan:
             self.bsr = (data, sp.bsr_matrix((data, self.indices, self.indptr), shape=(n, n)))
         return self.bsr[1], dblk
 
+    def pattern(self) -> SystemPlan:
+        """This plan without its values (no block terms, contact matrices or K): what
+        :func:`plan_system` needs of it to keep its pattern for the next step, held at the
+        cost of a few integers per contact."""
+        empty = np.zeros((0, 3, self.d))
+        return dataclasses.replace(self, base=np.zeros((0, self.d, self.d)), ti=empty,
+                                   tj=empty, normal=np.zeros((0, 3)), components=None,
+                                   last=None, bsr=None)
+
     def _data(self, kn: np.ndarray, ks: np.ndarray) -> np.ndarray:
         """BSR data of K for `kn`, `ks`: the last K updated in place by the contacts
         whose stiffness changed when they are few (an open-close cycle changes tens of a
@@ -172,17 +182,25 @@ UPDATE_MIN_CONTACTS = 512
 
 def plan_system(
     row_of: np.ndarray, diag: np.ndarray, bi: np.ndarray, bj: np.ndarray,
-    ti: np.ndarray, tj: np.ndarray, normal: np.ndarray,
+    ti: np.ndarray, tj: np.ndarray, normal: np.ndarray, last: SystemPlan | None = None,
 ) -> SystemPlan:
     """The :class:`SystemPlan` of one step. `row_of (n,) int` is each block's block row
     (-1 for fixed blocks, rows in block order), `diag (n, d, d)` the block terms; contacts
     `bi`, `bj (c,)` with `ti`, `tj (c, 3, d)` and `normal (c, 3)`. K is dense for systems
-    of at most DENSE_MAX_UNKNOWNS unknowns, else block-sparse (BSR)."""
+    of at most DENSE_MAX_UNKNOWNS unknowns, else block-sparse (BSR). `last`: an earlier
+    plan (the last step's) whose pattern is kept when its contacts join the same block rows
+    in the same order (the contact pairs a skin keeps), so only the values are filled."""
     d = diag.shape[1]
     m = int(row_of.max(initial=-1)) + 1
     fi = np.ascontiguousarray(row_of[bi], dtype=np.int64)
     fj = np.ascontiguousarray(row_of[bj], dtype=np.int64)
-    indptr, indices, diag_slot, sii, sjj, sij, sji = bsr_pattern(m, fi, fj)
+    if (last is not None and last.m == m and last.d == d and np.array_equal(last.fi, fi)
+            and np.array_equal(last.fj, fj)):
+        fi, fj = last.fi, last.fj
+        indptr, indices, diag_slot = last.indptr, last.indices, last.diag_slot
+        sii, sjj, sij, sji = last.slot_ii, last.slot_jj, last.slot_ij, last.slot_ji
+    else:
+        indptr, indices, diag_slot, sii, sjj, sij, sji = bsr_pattern(m, fi, fj)
     base = np.zeros((len(indices), d, d))
     base[diag_slot] = diag[row_of >= 0]
     return SystemPlan(m=m, d=d, base=base, indptr=indptr, indices=indices,

@@ -239,10 +239,14 @@ class _LinearSystem:
     last cycle warm-starts the next."""
 
     def __init__(self, system: BlockSystem, kb: np.ndarray, t: _Terms, dt: float,
-                 links: tuple[np.ndarray, ...] | None = None) -> None:
+                 links: tuple[np.ndarray, ...] | None = None,
+                 workspace: dict | None = None) -> None:
         self.system, self.kb, self.t, self.dt = system, kb, t, dt
         #: two-point springs between free blocks that are not contacts (rock bolts)
         self.links = links
+        #: the run's workspace (`State.workspace`): the last step's plan, whose pattern the
+        #: step's K keeps while its contacts join the same blocks
+        self.workspace = {} if workspace is None else workspace
         self.plan: asm.SystemPlan | None = None
         self.solver = None
         self.key: tuple[bytes, bytes] | None = None
@@ -258,18 +262,22 @@ class _LinearSystem:
             return False
         s, t = self.system, self.t
         kn, ks = (s.kn + cn / self.dt) * closed, s.ks * locked
+        fresh = self.plan is None
+        last = self.workspace.get("plan") if fresh else None
         if self.links is None:
             if self.plan is None:
                 self.plan = asm.plan_system(s.block_row, self.kb, t.bi, t.bj, t.ti, t.tj,
-                                            t.normal)
+                                            t.normal, last=last)
         else:
             bi, bj, ti, tj, axis, ka, ksb = self.links
             if self.plan is None:
                 self.plan = asm.plan_system(
                     s.block_row, self.kb, np.concatenate([t.bi, bi]),
                     np.concatenate([t.bj, bj]), np.concatenate([t.ti, ti]),
-                    np.concatenate([t.tj, tj]), np.concatenate([t.normal, axis]))
+                    np.concatenate([t.tj, tj]), np.concatenate([t.normal, axis]), last=last)
             kn, ks = np.concatenate([kn, ka]), np.concatenate([ks, ksb])
+        if fresh:
+            self.workspace["plan"] = self.plan.pattern()
         k, kdiag = self.plan.matrix(kn, ks)
         try:
             self.solver = make_solver(k, s.ndof, kdiag, self.jacobi, self.plan.components)
@@ -469,7 +477,7 @@ def open_close_iteration(system: BlockSystem, state: State, contacts: ContactSet
     t = _terms(system, state, contacts, patches, start.shear)
     broken0 = start.broken.copy()
     m = _start(system, start, t)
-    lin = _LinearSystem(system, kb, t, dt, bolt_links(system, state))
+    lin = _LinearSystem(system, kb, t, dt, bolt_links(system, state), state.workspace)
     max_changes = system.controls.max_open_close_iterations
     for it in range(1, FRICTION_ITERATIONS_PER_CHANGE * (max_changes + 1) + 1):
         was_sliding = m.mode == SLIDING
