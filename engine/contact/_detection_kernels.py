@@ -118,59 +118,9 @@ def feature_code(piece: int, kind: int, index: int) -> int:
 
 
 @njit(**_OPTS)
-def geometry(x: np.ndarray, f_vtx: np.ndarray, f_nxt: np.ndarray, e_vtx: np.ndarray,
-             e_faces: np.ndarray, pv_vtx: np.ndarray, pv_nb: np.ndarray,
-             pv_start: np.ndarray, pv_count: np.ndarray, parallel: float
-             ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray,
-                        np.ndarray, np.ndarray, np.ndarray]:
-    """Position-dependent quantities: `(f_normal (F, 3), f_offset (F,), e_dir (E, 3),
-    e_in (E, 2, 3), e_flat (E,), pv_dir (V, D, 3), p_lo (P, 3), p_hi (P, 3))`."""
-    nf, kk = f_vtx.shape
-    f_normal = np.zeros((nf, 3))
-    f_offset = np.zeros(nf)
-    u = np.zeros(3)
-    w = np.zeros(3)
-    c = np.zeros(3)
-    for f in range(nf):
-        p0 = x[f_vtx[f, 0]]
-        acc = f_normal[f]
-        for k in range(kk):
-            a, b = x[f_vtx[f, k]], x[f_nxt[f, k]]
-            for j in range(3):
-                u[j] = a[j] - p0[j]
-                w[j] = b[j] - p0[j]
-            _cross(u, w, c)
-            for j in range(3):
-                acc[j] += c[j]
-        _unit_inplace(acc)
-        f_offset[f] = _dot(acc, p0)
-    ne = len(e_vtx)
-    e_dir = np.zeros((ne, 3))
-    e_in = np.zeros((ne, 2, 3))
-    e_flat = np.zeros(ne, dtype=np.bool_)
-    for e in range(ne):
-        d = e_dir[e]
-        a, b = x[e_vtx[e, 0]], x[e_vtx[e, 1]]
-        for j in range(3):
-            d[j] = b[j] - a[j]
-            w[j] = -d[j]
-        n1, n2 = f_normal[e_faces[e, 0]], f_normal[e_faces[e, 1]]
-        _cross(n1, d, e_in[e, 0])
-        _unit_inplace(e_in[e, 0])
-        _cross(n2, w, e_in[e, 1])
-        _unit_inplace(e_in[e, 1])
-        e_flat[e] = _dot(n1, n2) > 1.0 - parallel
-    nv, dd = pv_nb.shape
-    pv_dir = np.zeros((nv, dd, 3))
-    for v in range(nv):
-        p = x[pv_vtx[v]]
-        for k in range(dd):
-            q = pv_nb[v, k]
-            if q >= 0:
-                r = pv_dir[v, k]
-                for j in range(3):
-                    r[j] = x[q, j] - p[j]
-                _unit_inplace(r)
+def piece_boxes(x: np.ndarray, pv_vtx: np.ndarray, pv_start: np.ndarray,
+                pv_count: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The bounding boxes `(p_lo, p_hi) (P, 3)` of all pieces at the vertex positions `x`."""
     npc = len(pv_start)
     p_lo = np.zeros((npc, 3))
     p_hi = np.zeros((npc, 3))
@@ -184,7 +134,70 @@ def geometry(x: np.ndarray, f_vtx: np.ndarray, f_nxt: np.ndarray, e_vtx: np.ndar
                 t = x[pv_vtx[v], j]
                 p_lo[p, j] = min(p_lo[p, j], t)
                 p_hi[p, j] = max(p_hi[p, j], t)
-    return f_normal, f_offset, e_dir, e_in, e_flat, pv_dir, p_lo, p_hi
+    return p_lo, p_hi
+
+
+@njit(**_OPTS)
+def geometry(x: np.ndarray, f_vtx: np.ndarray, f_nxt: np.ndarray, e_vtx: np.ndarray,
+             e_faces: np.ndarray, pv_vtx: np.ndarray, pv_nb: np.ndarray,
+             f_start: np.ndarray, f_count: np.ndarray, e_start: np.ndarray,
+             e_count: np.ndarray, pv_start: np.ndarray, pv_count: np.ndarray,
+             pieces: np.ndarray, parallel: float
+             ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray,
+                        np.ndarray]:
+    """Position-dependent quantities of the pieces marked in `pieces (P,) bool` (the ones
+    in a pair the narrow phase looks at; zeros for the others): `(f_normal (F, 3),
+    f_offset (F,), e_dir (E, 3), e_in (E, 2, 3), e_flat (E,), pv_dir (V, D, 3))`."""
+    nf, kk = f_vtx.shape
+    f_normal = np.zeros((nf, 3))
+    f_offset = np.zeros(nf)
+    ne = len(e_vtx)
+    e_dir = np.zeros((ne, 3))
+    e_in = np.zeros((ne, 2, 3))
+    e_flat = np.zeros(ne, dtype=np.bool_)
+    nv, dd = pv_nb.shape
+    pv_dir = np.zeros((nv, dd, 3))
+    u = np.zeros(3)
+    w = np.zeros(3)
+    c = np.zeros(3)
+    for piece in range(len(pieces)):
+        if not pieces[piece]:
+            continue
+        for f in range(f_start[piece], f_start[piece] + f_count[piece]):
+            p0 = x[f_vtx[f, 0]]
+            acc = f_normal[f]
+            for k in range(kk):
+                a, b = x[f_vtx[f, k]], x[f_nxt[f, k]]
+                for j in range(3):
+                    u[j] = a[j] - p0[j]
+                    w[j] = b[j] - p0[j]
+                _cross(u, w, c)
+                for j in range(3):
+                    acc[j] += c[j]
+            _unit_inplace(acc)
+            f_offset[f] = _dot(acc, p0)
+        for e in range(e_start[piece], e_start[piece] + e_count[piece]):
+            d = e_dir[e]
+            a, b = x[e_vtx[e, 0]], x[e_vtx[e, 1]]
+            for j in range(3):
+                d[j] = b[j] - a[j]
+                w[j] = -d[j]
+            n1, n2 = f_normal[e_faces[e, 0]], f_normal[e_faces[e, 1]]
+            _cross(n1, d, e_in[e, 0])
+            _unit_inplace(e_in[e, 0])
+            _cross(n2, w, e_in[e, 1])
+            _unit_inplace(e_in[e, 1])
+            e_flat[e] = _dot(n1, n2) > 1.0 - parallel
+        for v in range(pv_start[piece], pv_start[piece] + pv_count[piece]):
+            p = x[pv_vtx[v]]
+            for k in range(dd):
+                q = pv_nb[v, k]
+                if q >= 0:
+                    r = pv_dir[v, k]
+                    for j in range(3):
+                        r[j] = x[q, j] - p[j]
+                    _unit_inplace(r)
+    return f_normal, f_offset, e_dir, e_in, e_flat, pv_dir
 
 
 # --------------------------------------------------------------------------- broad phase
@@ -402,14 +415,16 @@ def _in_box(p: np.ndarray, lo: np.ndarray, hi: np.ndarray, r: float) -> bool:
 def _near_edges(p: int, side: int, other: int, x: np.ndarray, e_start: np.ndarray,
                 e_count: np.ndarray, e_vtx: np.ndarray, e_slot: np.ndarray,
                 e_real: np.ndarray, e_flat: np.ndarray, vbound: np.ndarray, within: float,
-                p_lo: np.ndarray, p_hi: np.ndarray, r: float, out: np.ndarray) -> int:
+                p_lo: np.ndarray, p_hi: np.ndarray, r: float, out: np.ndarray,
+                kept: np.ndarray) -> int:
     """Real convex edges of piece `p` (on `side`) with a distance bound `vbound[side]` of
     at most `within` at one of their ends and whose box meets the box of piece `other`
-    inflated by `r`, into `out`; returns how many."""
+    inflated by `r`, into `out`; returns how many. `kept[side]`: the piece's edges a skin
+    keeps for the pair (all of them without a skin)."""
     n = 0
     lo, hi = p_lo[other], p_hi[other]
     for e in range(e_start[p], e_start[p] + e_count[p]):
-        if not e_real[e] or e_flat[e]:
+        if not e_real[e] or e_flat[e] or not kept[side, e - e_start[p]]:
             continue
         if not (vbound[side, e_slot[e, 0]] <= within or vbound[side, e_slot[e, 1]] <= within):
             continue
@@ -564,19 +579,83 @@ class SceneGeometry(NamedTuple):
     p_hi: np.ndarray
 
 
+class SkinLists(NamedTuple):
+    """What a skin (:mod:`engine.contact.skin`) keeps of the piece pairs given to
+    :func:`narrow_phase`: pair k's candidate piece vertices are `v_list[v_ptr[k]:v_ptr[k +
+    1]]` and its candidate edges `e_list[e_ptr[k]:e_ptr[k + 1]]` (global ids); a pair is
+    only searched when one of its blocks is `active` and their piece boxes, each grown by
+    its block's `inflate (n_blocks,)` (reach + snap), overlap: the broad phase of the step.
+    Empty `v_ptr`: no skin, every pair and feature is searched."""
+
+    v_ptr: np.ndarray
+    v_list: np.ndarray
+    e_ptr: np.ndarray
+    e_list: np.ndarray
+    inflate: np.ndarray
+    active: np.ndarray
+
+
+@njit(**_OPTS)
+def _kept_pair(a_p: int, b_p: int, bi: int, bj: int, p_lo: np.ndarray, p_hi: np.ndarray,
+               keep: SkinLists) -> bool:
+    """Whether a pair a skin keeps is one this step's broad phase finds: a block awake and
+    the piece boxes, grown by their blocks' reach and snap, overlapping (the test of
+    :func:`piece_pairs`, so that the pairs are exactly its pairs)."""
+    if not (keep.active[bi] or keep.active[bj]):
+        return False
+    gi, gj = keep.inflate[bi], keep.inflate[bj]
+    for j in range(3):
+        if not (p_lo[a_p, j] - gi <= p_hi[b_p, j] + gj and p_lo[b_p, j] - gj <= p_hi[a_p, j] + gi):
+            return False
+    return True
+
+
+@njit(**_OPTS)
+def _mark_kept(pair: int, a_p: int, b_p: int, pv_start: np.ndarray, e_start: np.ndarray,
+               keep: SkinLists, v_kept: np.ndarray, e_kept: np.ndarray, on: bool) -> None:
+    """Set (`on`) or clear the marks `v_kept`, `e_kept (2, ·)` of the candidate vertices
+    and edges a skin keeps for `pair` (side 0: piece `a_p`, side 1: `b_p`)."""
+    for t in range(keep.v_ptr[pair], keep.v_ptr[pair + 1]):
+        pv = keep.v_list[t]
+        if _in_piece(pv, a_p, pv_start):
+            v_kept[0, pv - pv_start[a_p]] = on
+        else:
+            v_kept[1, pv - pv_start[b_p]] = on
+    for t in range(keep.e_ptr[pair], keep.e_ptr[pair + 1]):
+        e = keep.e_list[t]
+        if _in_piece(e, a_p, e_start):
+            e_kept[0, e - e_start[a_p]] = on
+        else:
+            e_kept[1, e - e_start[b_p]] = on
+
+
+@njit(**_OPTS)
+def _in_piece(k: int, p: int, start: np.ndarray) -> bool:
+    """Whether global id `k` (a piece vertex, or an edge) belongs to piece `p`, given each
+    piece's first id `start` (ids are consecutive by piece)."""
+    return k >= start[p] and (p + 1 >= len(start) or k < start[p + 1])
+
+
+def no_skin() -> SkinLists:
+    """The :class:`SkinLists` of a search without a skin."""
+    z = np.zeros(0, dtype=np.int64)
+    return SkinLists(z, z, z, z, np.zeros(0), np.zeros(0, dtype=np.bool_))
+
+
 # One long compiled loop by design: the four contact types of a piece pair share the pair's
 # separating plane, near-edge lists and scratch buffers, and splitting it into separate
 # kernels would pass those between calls for every pair (measured slower on piles).
 @njit(**_OPTS)
 def narrow_phase(pa: np.ndarray, pb: np.ndarray, x: np.ndarray, topo: SceneTopology,
                  geo: SceneGeometry, reach: np.ndarray, snap: float, ang: float,
-                 parallel: float, entrance: float
+                 parallel: float, entrance: float, keep: SkinLists
                  ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Contacts of the piece pairs `(pa[k] of block i, pb[k] of block j)`, reduced to one
     per (piece pair, vertex) (v-f over v-e over v-v, then the largest gap) and without
     edge-edge contacts deeper than the pair's shallowest face exit. A pair is searched
     within `reach[i] + reach[j]` (m; `reach (n_blocks,)`). Returns `(ri, rf, cand)`
-    (module docstring)."""
+    (module docstring). `keep`: a skin's pairs and candidate features (:class:`SkinLists`;
+    the same rows as a search of every pair and feature, in less time)."""
     (v_surface, v_local, piece_block, piece_local, f_start, f_count, e_start, e_count,
      pv_start, pv_count, f_vtx, f_nxt, f_edge, f_valid, f_local, f_tag, f_real, e_vtx,
      e_faces, e_local, e_real, e_slot, pv_vtx, pv_surface, pv_nb_real, pv_faces, pv_ndir,
@@ -628,9 +707,18 @@ def narrow_phase(pa: np.ndarray, pb: np.ndarray, x: np.ndarray, topo: SceneTopol
     slab_c = np.zeros(2)
     close = np.zeros((2, maxpv), dtype=np.bool_)
     vbound = np.zeros((2, maxpv))
+    skin = len(keep.v_ptr) > 0
+    v_kept = np.ones((2, maxpv), dtype=np.bool_)
+    e_kept = np.ones((2, maxe), dtype=np.bool_)
+    if skin:
+        v_kept[:] = False
+        e_kept[:] = False
     for pair in range(npairs):
         a_p, b_p = pa[pair], pb[pair]
         bi, bj = piece_block[a_p], piece_block[b_p]
+        if skin:
+            if not _kept_pair(a_p, b_p, bi, bj, p_lo, p_hi, keep):
+                continue
         search = reach[bi] + reach[bj]
         r = search + snap
         na, nb_ = pv_count[a_p], pv_count[b_p]
@@ -645,6 +733,8 @@ def narrow_phase(pa: np.ndarray, pb: np.ndarray, x: np.ndarray, topo: SceneTopol
         far, close_by = 2.0 * r + snap, r + snap
         if sep > far:
             continue
+        if skin:
+            _mark_kept(pair, a_p, b_p, pv_start, e_start, keep, v_kept, e_kept, True)
         # bound of a feature at height h along the face normal: s (h - offset) + c
         for side in range(2):
             if sep_f < 0:  # no face plane to go by (degenerate pieces): no bound
@@ -666,15 +756,17 @@ def narrow_phase(pa: np.ndarray, pb: np.ndarray, x: np.ndarray, topo: SceneTopol
                 xv = x[pv_vtx[pv]]
                 bound = slab_s[side] * (_dot(sep_n, xv) - sep_o) + slab_c[side]
                 vbound[side, lv] = bound
-                near[side, lv] = (pv_surface[pv] and bound <= far
+                near[side, lv] = (pv_surface[pv] and v_kept[side, lv] and bound <= far
                                   and _in_box(xv, p_lo[yp], p_hi[yp], r))
                 close[side, lv] = near[side, lv] and bound <= close_by
         # real convex edges of each piece within r by the bound (at one of its ends: the
         # bound is linear along the edge) whose box meets the other's inflated box
         na_e = _near_edges(a_p, 0, b_p, x, e_start, e_count, e_vtx, e_slot, e_real, e_flat,
-                           vbound, close_by, p_lo, p_hi, r, ea_list)
+                           vbound, close_by, p_lo, p_hi, r, ea_list, e_kept)
         nb_e = _near_edges(b_p, 1, a_p, x, e_start, e_count, e_vtx, e_slot, e_real, e_flat,
-                           vbound, close_by, p_lo, p_hi, r, eb_list)
+                           vbound, close_by, p_lo, p_hi, r, eb_list, e_kept)
+        if skin:
+            _mark_kept(pair, a_p, b_p, pv_start, e_start, keep, v_kept, e_kept, False)
         # ---- vertex-face
         for side in range(2):
             xp, yp = (a_p, b_p) if side == 0 else (b_p, a_p)
@@ -871,13 +963,13 @@ def narrow_phase(pa: np.ndarray, pb: np.ndarray, x: np.ndarray, topo: SceneTopol
                 m += 1
         # one contact per vertex of block j's piece too: the largest gap, first on ties
         for s_ in range(m):
-            keep = True
+            alone = True
             for t in range(m):
                 if t != s_ and vv_b[t] == vv_b[s_] and (
                         vv_gap[t] > vv_gap[s_] or (vv_gap[t] == vv_gap[s_] and t < s_)):
-                    keep = False
+                    alone = False
                     break
-            if not keep:
+            if not alone:
                 continue
             va, vb, nc, best = vv_a[s_], vv_b[s_], vv_nc[s_], vv_best[s_]
             ri, rf, out_c = _reserve(ri, rf, out_c, k, q, 1, nc)
