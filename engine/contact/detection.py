@@ -34,12 +34,13 @@ from engine.contact._detection_kernels import (
     feature_code,
 )
 from engine.contact.constraints import LOCKED, OPEN, ContactSet
+from engine.dynamics.assembly import spare_core
 from engine.geometry.polyhedron import ConvexPiece, Polyhedron, edge_topology
 from engine.tolerances import DEFAULT_TOLERANCES, Tolerances
 
 #: piece pairs from which the narrow phase runs in slices on threads, as many as numba is
-#: configured for (the kernel releases the GIL; rows are joined in pair order, so the
-#: contacts are the same)
+#: configured for, when a core is spare (the kernel releases the GIL; rows are joined in
+#: pair order, so the contacts are the same)
 THREADED_MIN_PAIRS = 2048
 
 _I64 = np.int64
@@ -453,7 +454,7 @@ def _narrow_phase(pa: np.ndarray, pb: np.ndarray, x: np.ndarray, topo: kern.Scen
     own under TBB or workqueue)."""
     args = (x, topo, geo, reach, snap, float(np.sqrt(2.0 * parallel)), parallel, entrance)
     threads = numba.config.NUMBA_NUM_THREADS
-    if threads < 2 or len(pa) < THREADED_MIN_PAIRS:
+    if threads < 2 or len(pa) < THREADED_MIN_PAIRS or not spare_core():
         return kern.narrow_phase(pa, pb, *args, keep)
     cuts = np.linspace(0, len(pa), threads + 1).astype(np.int64)
 
