@@ -27,6 +27,7 @@ import numpy as np
 
 from benchmarks import (
     bench_contact_solvers,
+    bench_work,
     cases,
     components,
     peers,
@@ -39,6 +40,9 @@ from benchmarks import harness as h
 
 SECTIONS = ("accuracy", "peers", "stability", "trust", "scaling", "timestep", "savings",
             "components")
+#: sections written by a benchmark of their own (`python -m benchmarks.bench_work`), shown
+#: from their stored numbers
+OWN_SECTIONS = ("work",)
 #: scenes of the trust section that can be named alone
 TRUST_NAMES = (*trust.MAP_SCENES, *trust.EXAMPLE_SWEEPS, "jointed_slope")
 
@@ -412,7 +416,8 @@ def write_report(out: Path, report: Path, meta: dict[str, Any]) -> None:
         f"- mode: {'full' if meta['full'] else 'quick'}; this invocation ran "
         f"{', '.join(meta['ran'])} in {meta['wall']:.0f} s at {meta['when']}",
         "- sections: " + "; ".join(
-            f"{s}: {meta['stamps'].get(s, 'not run')}" for s in SECTIONS), "",
+            f"{s}: {meta['stamps'].get(s, 'not run')}" for s in (*SECTIONS, *OWN_SECTIONS)),
+        "",
     ]
     failures: list[tuple[str, str]] = []
     if acc:
@@ -452,6 +457,9 @@ def write_report(out: Path, report: Path, meta: dict[str, Any]) -> None:
                                                 h.load_json(out, "trust_complementarity"))
               if cs else
               "## 7. Contact solvers side by side\n\n(section not run)", ""]
+    wk = h.load_json(out, "work")
+    parts += [bench_work.report_part(wk) if wk else
+              "## 8. The work around the contact solve\n\n(section not run)", ""]
     if sv:
         failures += savings_failures(sv)
     parts += ["## Failures found", "",
@@ -473,6 +481,26 @@ def write_report(out: Path, report: Path, meta: dict[str, Any]) -> None:
     if rel != "results":
         text = text.replace("](results/", f"]({rel}/")
     report.write_text(text)
+
+
+def refresh_report(out: Path, section: str, command: str, wall: float) -> None:
+    """Write REPORT.md again from the stored sections after `section` was measured by
+    `command` (a benchmark of its own) in `wall` s; the header keeps the last
+    `python -m benchmarks` invocation."""
+    now = datetime.now(UTC).strftime("%Y-%m-%d %H:%M UTC")
+    stored = h.load_json(out, "meta") or {}
+    stamps = stored.get("stamps", {})
+    stamps[section] = f"`{command}` ({wall:.0f} s), {now}"
+    last = stored.get("last") or {"load_before": list(os.getloadavg()),
+                                  "load_after": list(os.getloadavg()), "full": False,
+                                  "ran": [], "wall": 0.0, "when": now,
+                                  "command": "python -m benchmarks"}
+    last["stamps"] = stamps
+    h.save_json(out, "meta", {"stamps": stamps, "last": last})
+    report = (Path(__file__).resolve().parent / "REPORT.md" if out == h.RESULTS
+              else out / "REPORT.md")
+    write_report(out, report, {**last, "machine": h.machine_info()})
+    print(f"wrote {report}")
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -19,7 +19,7 @@ from benchmarks import harness as h
 
 #: spacing (m) → about how many blocks the 10 m cube gives
 SPACINGS = (1.2, 0.62, 0.5)
-PHASES = ("detection", "assembly", "solve", "open_close", "update")
+PHASES = ("detection", "assembly", "solve", "open_close", "update", "damping")
 
 
 def one(spacing: float, steps: int) -> dict:

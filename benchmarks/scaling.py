@@ -66,7 +66,7 @@ def time_steps(model: Model, steps: int | None, memory: bool = False,
             "contacts_mean": float(np.mean(contacts)) if contacts else 0.0,
             "contacts_last": contacts[-1] if contacts else 0, "status": status,
             "message": message, "tracemalloc_peak_mb": peak, "rss_peak_mb": h.peak_rss_mb(),
-            **{f"t_{p}": timings.get(p, 0.0) / max(n, 1) for p in PHASES}}
+            **{f"t_{p}": timings.get(p, 0.0) / max(n, 1) for p in (*PHASES, "damping")}}
 
 
 def _traced_peak_mb(model: Model, steps: int, adaptive_search: bool) -> float:

@@ -210,3 +210,27 @@ def test_k_updated_from_the_last_equals_k_filled_afresh(
         np.testing.assert_allclose(k, ref.toarray(), rtol=0, atol=1e-12)
     assert len(fills) == 1 + 6  # the plan filled its first K only; `fresh` every time
 
+
+
+def test_threaded_loops_give_the_serial_bits(monkeypatch: pytest.MonkeyPatch) -> None:
+    """The per-contact loops on numba's threads (contact matrices, K's fill, the open-close
+    loads, relative displacements, the narrow phase in slices) sum every output in the
+    serial order: a rock mass stepped with all of them on threads ends bit for bit where the
+    serial run ends, whatever the number of threads."""
+    from benchmarks.pile import rock_mass_model
+    from engine.contact import detection
+    from engine.dynamics import assembly
+    from engine.step.simulation import Simulation
+
+    def run(threads: bool) -> tuple[np.ndarray, ...]:
+        monkeypatch.setattr(assembly, "threaded", lambda count: threads)
+        monkeypatch.setattr(detection, "THREADED_MIN_PAIRS", 1 if threads else 10**9)
+        monkeypatch.setattr(detection, "spare_core", lambda: threads)
+        sim = Simulation(rock_mass_model(3.4, duration=1.0))
+        for _ in range(6):
+            sim.step()
+        s = sim.state
+        return s.centroid, s.velocity, s.rotation, s.memory.gap, s.memory.shear
+
+    for a, b in zip(run(False), run(True), strict=True):
+        assert np.array_equal(a.view(np.int64), b.view(np.int64))

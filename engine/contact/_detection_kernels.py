@@ -118,59 +118,9 @@ def feature_code(piece: int, kind: int, index: int) -> int:
 
 
 @njit(**_OPTS)
-def geometry(x: np.ndarray, f_vtx: np.ndarray, f_nxt: np.ndarray, e_vtx: np.ndarray,
-             e_faces: np.ndarray, pv_vtx: np.ndarray, pv_nb: np.ndarray,
-             pv_start: np.ndarray, pv_count: np.ndarray, parallel: float
-             ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray,
-                        np.ndarray, np.ndarray, np.ndarray]:
-    """Position-dependent quantities: `(f_normal (F, 3), f_offset (F,), e_dir (E, 3),
-    e_in (E, 2, 3), e_flat (E,), pv_dir (V, D, 3), p_lo (P, 3), p_hi (P, 3))`."""
-    nf, kk = f_vtx.shape
-    f_normal = np.zeros((nf, 3))
-    f_offset = np.zeros(nf)
-    u = np.zeros(3)
-    w = np.zeros(3)
-    c = np.zeros(3)
-    for f in range(nf):
-        p0 = x[f_vtx[f, 0]]
-        acc = f_normal[f]
-        for k in range(kk):
-            a, b = x[f_vtx[f, k]], x[f_nxt[f, k]]
-            for j in range(3):
-                u[j] = a[j] - p0[j]
-                w[j] = b[j] - p0[j]
-            _cross(u, w, c)
-            for j in range(3):
-                acc[j] += c[j]
-        _unit_inplace(acc)
-        f_offset[f] = _dot(acc, p0)
-    ne = len(e_vtx)
-    e_dir = np.zeros((ne, 3))
-    e_in = np.zeros((ne, 2, 3))
-    e_flat = np.zeros(ne, dtype=np.bool_)
-    for e in range(ne):
-        d = e_dir[e]
-        a, b = x[e_vtx[e, 0]], x[e_vtx[e, 1]]
-        for j in range(3):
-            d[j] = b[j] - a[j]
-            w[j] = -d[j]
-        n1, n2 = f_normal[e_faces[e, 0]], f_normal[e_faces[e, 1]]
-        _cross(n1, d, e_in[e, 0])
-        _unit_inplace(e_in[e, 0])
-        _cross(n2, w, e_in[e, 1])
-        _unit_inplace(e_in[e, 1])
-        e_flat[e] = _dot(n1, n2) > 1.0 - parallel
-    nv, dd = pv_nb.shape
-    pv_dir = np.zeros((nv, dd, 3))
-    for v in range(nv):
-        p = x[pv_vtx[v]]
-        for k in range(dd):
-            q = pv_nb[v, k]
-            if q >= 0:
-                r = pv_dir[v, k]
-                for j in range(3):
-                    r[j] = x[q, j] - p[j]
-                _unit_inplace(r)
+def piece_boxes(x: np.ndarray, pv_vtx: np.ndarray, pv_start: np.ndarray,
+                pv_count: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The bounding boxes `(p_lo, p_hi) (P, 3)` of all pieces at the vertex positions `x`."""
     npc = len(pv_start)
     p_lo = np.zeros((npc, 3))
     p_hi = np.zeros((npc, 3))
@@ -184,7 +134,70 @@ def geometry(x: np.ndarray, f_vtx: np.ndarray, f_nxt: np.ndarray, e_vtx: np.ndar
                 t = x[pv_vtx[v], j]
                 p_lo[p, j] = min(p_lo[p, j], t)
                 p_hi[p, j] = max(p_hi[p, j], t)
-    return f_normal, f_offset, e_dir, e_in, e_flat, pv_dir, p_lo, p_hi
+    return p_lo, p_hi
+
+
+@njit(**_OPTS)
+def geometry(x: np.ndarray, f_vtx: np.ndarray, f_nxt: np.ndarray, e_vtx: np.ndarray,
+             e_faces: np.ndarray, pv_vtx: np.ndarray, pv_nb: np.ndarray,
+             f_start: np.ndarray, f_count: np.ndarray, e_start: np.ndarray,
+             e_count: np.ndarray, pv_start: np.ndarray, pv_count: np.ndarray,
+             pieces: np.ndarray, parallel: float
+             ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray,
+                        np.ndarray]:
+    """Position-dependent quantities of the pieces marked in `pieces (P,) bool` (the ones
+    in a pair the narrow phase looks at; zeros for the others): `(f_normal (F, 3),
+    f_offset (F,), e_dir (E, 3), e_in (E, 2, 3), e_flat (E,), pv_dir (V, D, 3))`."""
+    nf, kk = f_vtx.shape
+    f_normal = np.zeros((nf, 3))
+    f_offset = np.zeros(nf)
+    ne = len(e_vtx)
+    e_dir = np.zeros((ne, 3))
+    e_in = np.zeros((ne, 2, 3))
+    e_flat = np.zeros(ne, dtype=np.bool_)
+    nv, dd = pv_nb.shape
+    pv_dir = np.zeros((nv, dd, 3))
+    u = np.zeros(3)
+    w = np.zeros(3)
+    c = np.zeros(3)
+    for piece in range(len(pieces)):
+        if not pieces[piece]:
+            continue
+        for f in range(f_start[piece], f_start[piece] + f_count[piece]):
+            p0 = x[f_vtx[f, 0]]
+            acc = f_normal[f]
+            for k in range(kk):
+                a, b = x[f_vtx[f, k]], x[f_nxt[f, k]]
+                for j in range(3):
+                    u[j] = a[j] - p0[j]
+                    w[j] = b[j] - p0[j]
+                _cross(u, w, c)
+                for j in range(3):
+                    acc[j] += c[j]
+            _unit_inplace(acc)
+            f_offset[f] = _dot(acc, p0)
+        for e in range(e_start[piece], e_start[piece] + e_count[piece]):
+            d = e_dir[e]
+            a, b = x[e_vtx[e, 0]], x[e_vtx[e, 1]]
+            for j in range(3):
+                d[j] = b[j] - a[j]
+                w[j] = -d[j]
+            n1, n2 = f_normal[e_faces[e, 0]], f_normal[e_faces[e, 1]]
+            _cross(n1, d, e_in[e, 0])
+            _unit_inplace(e_in[e, 0])
+            _cross(n2, w, e_in[e, 1])
+            _unit_inplace(e_in[e, 1])
+            e_flat[e] = _dot(n1, n2) > 1.0 - parallel
+        for v in range(pv_start[piece], pv_start[piece] + pv_count[piece]):
+            p = x[pv_vtx[v]]
+            for k in range(dd):
+                q = pv_nb[v, k]
+                if q >= 0:
+                    r = pv_dir[v, k]
+                    for j in range(3):
+                        r[j] = x[q, j] - p[j]
+                    _unit_inplace(r)
+    return f_normal, f_offset, e_dir, e_in, e_flat, pv_dir
 
 
 # --------------------------------------------------------------------------- broad phase
@@ -270,29 +283,30 @@ def piece_pairs(block_pairs: np.ndarray, piece_block: np.ndarray, p_lo: np.ndarr
 
 
 @njit(**_OPTS)
-def _select_planes(cand: np.ndarray, cvalid: np.ndarray, cface: np.ndarray, nc: int,
-                   dx: np.ndarray, dy: np.ndarray, ndy: int, delta: np.ndarray,
-                   entrance: float, snap: float, ang: float, adm: np.ndarray,
-                   adm_gap: np.ndarray) -> int:
+def _select_planes(cand: np.ndarray, cface: np.ndarray, nc: int, dx: np.ndarray, ndx: int,
+                   dy: np.ndarray, ndy: int, delta: np.ndarray, entrance: float, snap: float,
+                   ang: float, adm: np.ndarray, adm_gap: np.ndarray) -> int:
     """Shortest exit among candidate planes `cand[:nc]` (normals from Y into X); fills
     `adm[:nc]` and the gaps `adm_gap[:nc]`, returns the best index or -1 when none is
     admissible.
 
-    A plane is admissible when X's cone directions `dx (D, 3)` lie on its + side and
+    A plane is admissible when X's cone directions `dx[:ndx]` lie on its + side and
     Y's `dy[:ndy]` on its - side. Among admissible planes the largest gap `delta . n`
     wins; near-ties go to face planes, then to the largest clearance of the off-plane
     cone directions (the rule of :func:`engine.contact.detection` `_select_planes`).
+    The candidates are all valid (written by :func:`_face_candidates` and
+    :func:`_cross_candidates`), the directions those of real neighbours (the zero rows
+    that pad them would change no test).
     """
     gap = adm_gap
     top = -np.inf
     found = False
     for c in range(nc):
-        ok = cvalid[c]
-        if ok:
-            for k in range(len(dx)):
-                if _dot_mm(cand[c], dx[k]) < -entrance:
-                    ok = False
-                    break
+        ok = True
+        for k in range(ndx):
+            if _dot_mm(cand[c], dx[k]) < -entrance:
+                ok = False
+                break
         if ok:
             for k in range(ndy):
                 if -_dot_mm(cand[c], dy[k]) < -entrance:
@@ -312,7 +326,7 @@ def _select_planes(cand: np.ndarray, cvalid: np.ndarray, cface: np.ndarray, nc: 
         score = -1.0
         if adm[c] and gap[c] >= top - snap:
             clear = np.inf
-            for k in range(len(dx)):
+            for k in range(ndx):
                 v = _dot_mm(cand[c], dx[k])
                 if v > ang and v < clear:
                     clear = v
@@ -328,56 +342,52 @@ def _select_planes(cand: np.ndarray, cvalid: np.ndarray, cface: np.ndarray, nc: 
 
 
 @njit(**_OPTS)
-def _cross_candidates(dx: np.ndarray, rx: np.ndarray, ey: np.ndarray, ry: np.ndarray,
-                      ney: int, parallel: float, cand: np.ndarray, cvalid: np.ndarray,
+def _cross_candidates(dx: np.ndarray, ndx: int, rx: np.ndarray, ey: np.ndarray,
+                      ry: np.ndarray, ney: int, parallel: float, cand: np.ndarray,
                       cface: np.ndarray, ctag: np.ndarray, at: int) -> int:
-    """Planes through one real edge direction of X (`dx (D, 3)`, mask `rx`) and one of
-    Y (`ey[:ney]`, mask `ry`), signed so X is on +; written from `cand[at]` in
-    (X direction, Y direction) order. Returns the next free index."""
+    """Planes through one real edge direction of X (`dx[:ndx]`, mask `rx`) and one of
+    Y (`ey[:ney]`, mask `ry`), signed so X is on +; the valid ones (not through parallel
+    edges) written from `cand[at]` in (X direction, Y direction) order. Returns the next
+    free index."""
     s0 = s1 = s2 = 0.0
-    for k in range(len(dx)):
+    for k in range(ndx):
         s0 += dx[k, 0]
         s1 += dx[k, 1]
         s2 += dx[k, 2]
     lim = np.sqrt(2.0 * parallel)
-    for a in range(len(dx)):
+    for a in range(ndx):
+        if not rx[a]:
+            continue
         for b in range(ney):
+            if not ry[b]:
+                continue
             c = cand[at]
             _cross(dx[a], ey[b], c)
             n = _norm(c)
-            ok = rx[a] and ry[b] and n > lim
-            cvalid[at] = ok
+            if not n > lim:
+                continue
             cface[at] = False
             ctag[at] = -1
-            if ok:
+            for j in range(3):
+                c[j] /= n
+            if (c[0] * s0 + c[2] * s2) + c[1] * s1 < 0:
                 for j in range(3):
-                    c[j] /= n
-                if (c[0] * s0 + c[2] * s2) + c[1] * s1 < 0:
-                    for j in range(3):
-                        c[j] = -c[j]
-            else:
-                c[:] = 0.0
+                    c[j] = -c[j]
             at += 1
     return at
 
 
 @njit(**_OPTS)
-def _face_candidates(pv_faces: np.ndarray, f_normal: np.ndarray, f_tag: np.ndarray, pv: int,
-                     sign: float, cand: np.ndarray, cvalid: np.ndarray, cface: np.ndarray,
-                     ctag: np.ndarray, at: int) -> int:
+def _face_candidates(pv_faces: np.ndarray, pv_nfaces: np.ndarray, f_normal: np.ndarray,
+                     f_tag: np.ndarray, pv: int, sign: float, cand: np.ndarray,
+                     cface: np.ndarray, ctag: np.ndarray, at: int) -> int:
     """Normals (times `sign`) of the real faces at piece vertex `pv`, from `cand[at]`."""
-    for k in range(pv_faces.shape[1]):
+    for k in range(pv_nfaces[pv]):
         f = pv_faces[pv, k]
-        ok = f >= 0
-        cvalid[at] = ok
-        cface[at] = ok
-        if ok:
-            for j in range(3):
-                cand[at, j] = f_normal[f, j] * sign
-            ctag[at] = f_tag[f]
-        else:
-            cand[at] = 0.0
-            ctag[at] = -1
+        cface[at] = True
+        for j in range(3):
+            cand[at, j] = f_normal[f, j] * sign
+        ctag[at] = f_tag[f]
         at += 1
     return at
 
@@ -405,14 +415,16 @@ def _in_box(p: np.ndarray, lo: np.ndarray, hi: np.ndarray, r: float) -> bool:
 def _near_edges(p: int, side: int, other: int, x: np.ndarray, e_start: np.ndarray,
                 e_count: np.ndarray, e_vtx: np.ndarray, e_slot: np.ndarray,
                 e_real: np.ndarray, e_flat: np.ndarray, vbound: np.ndarray, within: float,
-                p_lo: np.ndarray, p_hi: np.ndarray, r: float, out: np.ndarray) -> int:
+                p_lo: np.ndarray, p_hi: np.ndarray, r: float, out: np.ndarray,
+                kept: np.ndarray) -> int:
     """Real convex edges of piece `p` (on `side`) with a distance bound `vbound[side]` of
     at most `within` at one of their ends and whose box meets the box of piece `other`
-    inflated by `r`, into `out`; returns how many."""
+    inflated by `r`, into `out`; returns how many. `kept[side]`: the piece's edges a skin
+    keeps for the pair (all of them without a skin)."""
     n = 0
     lo, hi = p_lo[other], p_hi[other]
     for e in range(e_start[p], e_start[p] + e_count[p]):
-        if not e_real[e] or e_flat[e]:
+        if not e_real[e] or e_flat[e] or not kept[side, e - e_start[p]]:
             continue
         if not (vbound[side, e_slot[e, 0]] <= within or vbound[side, e_slot[e, 1]] <= within):
             continue
@@ -550,6 +562,8 @@ class SceneTopology(NamedTuple):
     pv_surface: np.ndarray
     pv_nb_real: np.ndarray
     pv_faces: np.ndarray
+    pv_ndir: np.ndarray
+    pv_nfaces: np.ndarray
 
 
 class SceneGeometry(NamedTuple):
@@ -565,29 +579,93 @@ class SceneGeometry(NamedTuple):
     p_hi: np.ndarray
 
 
+class SkinLists(NamedTuple):
+    """What a skin (:mod:`engine.contact.skin`) keeps of the piece pairs given to
+    :func:`narrow_phase`: pair k's candidate piece vertices are `v_list[v_ptr[k]:v_ptr[k +
+    1]]` and its candidate edges `e_list[e_ptr[k]:e_ptr[k + 1]]` (global ids); a pair is
+    only searched when one of its blocks is `active` and their piece boxes, each grown by
+    its block's `inflate (n_blocks,)` (reach + snap), overlap: the broad phase of the step.
+    Empty `v_ptr`: no skin, every pair and feature is searched."""
+
+    v_ptr: np.ndarray
+    v_list: np.ndarray
+    e_ptr: np.ndarray
+    e_list: np.ndarray
+    inflate: np.ndarray
+    active: np.ndarray
+
+
+@njit(**_OPTS)
+def _kept_pair(a_p: int, b_p: int, bi: int, bj: int, p_lo: np.ndarray, p_hi: np.ndarray,
+               keep: SkinLists) -> bool:
+    """Whether a pair a skin keeps is one this step's broad phase finds: a block awake and
+    the piece boxes, grown by their blocks' reach and snap, overlapping (the test of
+    :func:`piece_pairs`, so that the pairs are exactly its pairs)."""
+    if not (keep.active[bi] or keep.active[bj]):
+        return False
+    gi, gj = keep.inflate[bi], keep.inflate[bj]
+    for j in range(3):
+        if not (p_lo[a_p, j] - gi <= p_hi[b_p, j] + gj and p_lo[b_p, j] - gj <= p_hi[a_p, j] + gi):
+            return False
+    return True
+
+
+@njit(**_OPTS)
+def _mark_kept(pair: int, a_p: int, b_p: int, pv_start: np.ndarray, e_start: np.ndarray,
+               keep: SkinLists, v_kept: np.ndarray, e_kept: np.ndarray, on: bool) -> None:
+    """Set (`on`) or clear the marks `v_kept`, `e_kept (2, ·)` of the candidate vertices
+    and edges a skin keeps for `pair` (side 0: piece `a_p`, side 1: `b_p`)."""
+    for t in range(keep.v_ptr[pair], keep.v_ptr[pair + 1]):
+        pv = keep.v_list[t]
+        if _in_piece(pv, a_p, pv_start):
+            v_kept[0, pv - pv_start[a_p]] = on
+        else:
+            v_kept[1, pv - pv_start[b_p]] = on
+    for t in range(keep.e_ptr[pair], keep.e_ptr[pair + 1]):
+        e = keep.e_list[t]
+        if _in_piece(e, a_p, e_start):
+            e_kept[0, e - e_start[a_p]] = on
+        else:
+            e_kept[1, e - e_start[b_p]] = on
+
+
+@njit(**_OPTS)
+def _in_piece(k: int, p: int, start: np.ndarray) -> bool:
+    """Whether global id `k` (a piece vertex, or an edge) belongs to piece `p`, given each
+    piece's first id `start` (ids are consecutive by piece)."""
+    return k >= start[p] and (p + 1 >= len(start) or k < start[p + 1])
+
+
+def no_skin() -> SkinLists:
+    """The :class:`SkinLists` of a search without a skin."""
+    z = np.zeros(0, dtype=np.int64)
+    return SkinLists(z, z, z, z, np.zeros(0), np.zeros(0, dtype=np.bool_))
+
+
 # One long compiled loop by design: the four contact types of a piece pair share the pair's
 # separating plane, near-edge lists and scratch buffers, and splitting it into separate
 # kernels would pass those between calls for every pair (measured slower on piles).
 @njit(**_OPTS)
 def narrow_phase(pa: np.ndarray, pb: np.ndarray, x: np.ndarray, topo: SceneTopology,
                  geo: SceneGeometry, reach: np.ndarray, snap: float, ang: float,
-                 parallel: float, entrance: float
+                 parallel: float, entrance: float, keep: SkinLists
                  ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Contacts of the piece pairs `(pa[k] of block i, pb[k] of block j)`, reduced to one
     per (piece pair, vertex) (v-f over v-e over v-v, then the largest gap) and without
     edge-edge contacts deeper than the pair's shallowest face exit. A pair is searched
     within `reach[i] + reach[j]` (m; `reach (n_blocks,)`). Returns `(ri, rf, cand)`
-    (module docstring)."""
+    (module docstring). `keep`: a skin's pairs and candidate features (:class:`SkinLists`;
+    the same rows as a search of every pair and feature, in less time)."""
     (v_surface, v_local, piece_block, piece_local, f_start, f_count, e_start, e_count,
      pv_start, pv_count, f_vtx, f_nxt, f_edge, f_valid, f_local, f_tag, f_real, e_vtx,
-     e_faces, e_local, e_real, e_slot, pv_vtx, pv_surface, pv_nb_real, pv_faces) = topo
+     e_faces, e_local, e_real, e_slot, pv_vtx, pv_surface, pv_nb_real, pv_faces, pv_ndir,
+     pv_nfaces) = topo
     f_normal, f_offset, e_dir, e_in, e_flat, pv_dir, p_lo, p_hi = geo
     dmax, dfmax = pv_dir.shape[1], pv_faces.shape[1]
     # a plane through edges lies on a face when within the entrance angle of it
     cos_tag = np.sqrt(1.0 - entrance * entrance)
     cmax = max(2 + dfmax + dmax, 2 * dfmax + dmax * dmax)
     cand = np.zeros((cmax, 3))
-    cvalid = np.zeros(cmax, dtype=np.bool_)
     cface = np.zeros(cmax, dtype=np.bool_)
     ctag = np.zeros(cmax, dtype=np.int64)
     adm = np.zeros(cmax, dtype=np.bool_)
@@ -616,13 +694,31 @@ def narrow_phase(pa: np.ndarray, pb: np.ndarray, x: np.ndarray, topo: SceneTopol
     vv_a = np.zeros(maxpv, dtype=np.int64)
     vv_b = np.zeros(maxpv, dtype=np.int64)
     vv_gap = np.zeros(maxpv)
+    # the winners' candidates: the vertex-edge one of the vertex at hand, the vertex-vertex
+    # ones of the pair (emitted without evaluating them again)
+    ve_cand, ve_adm = np.zeros((cmax, 3)), np.zeros(cmax, dtype=np.bool_)
+    ve_face, ve_tag, ve_proj = np.zeros(cmax, dtype=np.bool_), np.zeros(cmax, dtype=np.int64), \
+        np.zeros(3)
+    vv_cand, vv_adm = np.zeros((maxpv, cmax, 3)), np.zeros((maxpv, cmax), dtype=np.bool_)
+    vv_face, vv_tag = np.zeros((maxpv, cmax), dtype=np.bool_), np.zeros((maxpv, cmax),
+                                                                     dtype=np.int64)
+    vv_nc, vv_best = np.zeros(maxpv, dtype=np.int64), np.zeros(maxpv, dtype=np.int64)
     slab_s = np.zeros(2)
     slab_c = np.zeros(2)
     close = np.zeros((2, maxpv), dtype=np.bool_)
     vbound = np.zeros((2, maxpv))
+    skin = len(keep.v_ptr) > 0
+    v_kept = np.ones((2, maxpv), dtype=np.bool_)
+    e_kept = np.ones((2, maxe), dtype=np.bool_)
+    if skin:
+        v_kept[:] = False
+        e_kept[:] = False
     for pair in range(npairs):
         a_p, b_p = pa[pair], pb[pair]
         bi, bj = piece_block[a_p], piece_block[b_p]
+        if skin:
+            if not _kept_pair(a_p, b_p, bi, bj, p_lo, p_hi, keep):
+                continue
         search = reach[bi] + reach[bj]
         r = search + snap
         na, nb_ = pv_count[a_p], pv_count[b_p]
@@ -637,6 +733,8 @@ def narrow_phase(pa: np.ndarray, pb: np.ndarray, x: np.ndarray, topo: SceneTopol
         far, close_by = 2.0 * r + snap, r + snap
         if sep > far:
             continue
+        if skin:
+            _mark_kept(pair, a_p, b_p, pv_start, e_start, keep, v_kept, e_kept, True)
         # bound of a feature at height h along the face normal: s (h - offset) + c
         for side in range(2):
             if sep_f < 0:  # no face plane to go by (degenerate pieces): no bound
@@ -658,15 +756,17 @@ def narrow_phase(pa: np.ndarray, pb: np.ndarray, x: np.ndarray, topo: SceneTopol
                 xv = x[pv_vtx[pv]]
                 bound = slab_s[side] * (_dot(sep_n, xv) - sep_o) + slab_c[side]
                 vbound[side, lv] = bound
-                near[side, lv] = (pv_surface[pv] and bound <= far
+                near[side, lv] = (pv_surface[pv] and v_kept[side, lv] and bound <= far
                                   and _in_box(xv, p_lo[yp], p_hi[yp], r))
                 close[side, lv] = near[side, lv] and bound <= close_by
         # real convex edges of each piece within r by the bound (at one of its ends: the
         # bound is linear along the edge) whose box meets the other's inflated box
         na_e = _near_edges(a_p, 0, b_p, x, e_start, e_count, e_vtx, e_slot, e_real, e_flat,
-                           vbound, close_by, p_lo, p_hi, r, ea_list)
+                           vbound, close_by, p_lo, p_hi, r, ea_list, e_kept)
         nb_e = _near_edges(b_p, 1, a_p, x, e_start, e_count, e_vtx, e_slot, e_real, e_flat,
-                           vbound, close_by, p_lo, p_hi, r, eb_list)
+                           vbound, close_by, p_lo, p_hi, r, eb_list, e_kept)
+        if skin:
+            _mark_kept(pair, a_p, b_p, pv_start, e_start, keep, v_kept, e_kept, False)
         # ---- vertex-face
         for side in range(2):
             xp, yp = (a_p, b_p) if side == 0 else (b_p, a_p)
@@ -738,18 +838,24 @@ def narrow_phase(pa: np.ndarray, pb: np.ndarray, x: np.ndarray, topo: SceneTopol
                     continue
                 pv = pv_start[xp] + lv
                 xv = x[pv_vtx[pv]]
-                best_e, best_gap = -1, -np.inf
+                best_e, best_gap, best_nc, best_c = -1, -np.inf, 0, -1
                 for ie in range(ne):
-                    if not _within_segment(xv, x, e_vtx, e_dir, edges[ie], r):
+                    inside, length = _vertex_edge_foot(edges[ie], xv, x, v_surface, e_vtx,
+                                                       e_dir, snap, proj, delta)
+                    if not inside or not _within_segment(xv, x, e_vtx, e_dir, edges[ie], r):
                         continue
                     gap, nc, best = _vertex_edge_plane(
-                        edges[ie], pv, x, v_surface, e_vtx, e_dir, e_faces, e_in, f_normal,
-                        f_tag, pv_vtx, pv_faces, pv_dir, pv_nb_real, r, snap, ang, parallel,
-                        entrance, cand, cvalid, cface, ctag, adm, adm_gap, dy, ry, proj, delta)
+                        edges[ie], pv, length, e_dir, e_faces, e_in, f_normal, f_tag,
+                        pv_faces, pv_nfaces, pv_dir, pv_ndir, pv_nb_real, r, snap, ang,
+                        parallel, entrance, cand, cface, ctag, adm, adm_gap, dy, ry, delta)
                     # ties within snap go to the first edge (collinear edges split by a
                     # seam point): the choice must not depend on round-off
                     if best >= 0 and gap > best_gap + snap:
-                        best_e, best_gap = ie, gap
+                        best_e, best_gap, best_nc, best_c = ie, gap, nc, best
+                        _keep_candidates(nc, cand, adm, cface, ctag, ve_cand, ve_adm, ve_face,
+                                         ve_tag)
+                        for j in range(3):
+                            ve_proj[j] = proj[j]
                 if best_e < 0:
                     continue
                 # no deeper than the pair's shallowest face exit: an edge within reach
@@ -758,19 +864,17 @@ def narrow_phase(pa: np.ndarray, pb: np.ndarray, x: np.ndarray, topo: SceneTopol
                 if best_gap < -snap and best_gap < exit_gap - snap:
                     continue
                 e = edges[best_e]
-                gap, nc, best = _vertex_edge_plane(
-                    e, pv, x, v_surface, e_vtx, e_dir, e_faces, e_in, f_normal, f_tag, pv_vtx,
-                    pv_faces, pv_dir, pv_nb_real, r, snap, ang, parallel, entrance, cand,
-                    cvalid, cface, ctag, adm, adm_gap, dy, ry, proj, delta)
                 q0 = q
-                q = _copy_unique(cand, adm, nc, parallel, ukeep, out_c, q, side == 1)
+                q = _copy_unique(ve_cand, ve_adm, best_nc, parallel, ukeep, out_c, q,
+                                 side == 1)
                 v = pv_vtx[pv]
-                tag = ctag[best] if cface[best] else _plane_tag(
-                    pv_faces[pv], e_faces[e], f_tag, f_normal, cand[best], cos_tag)
+                tag = ve_tag[best_c] if ve_face[best_c] else _plane_tag(
+                    pv_faces[pv], e_faces[e], f_tag, f_normal, ve_cand[best_c], cos_tag)
                 _emit(ri, rf, k, bi, bj, VERTEX_EDGE,
                       feature_code(piece_local[xp], FEATURE_VERTEX, v_local[v]),
                       feature_code(piece_local[yp], FEATURE_EDGE, e_local[e]),
-                      tag, v, side == 1, q - q0, pair, xv, proj, cand[best], gap)
+                      tag, v, side == 1, q - q0, pair, xv, ve_proj, ve_cand[best_c],
+                      best_gap)
                 k += 1
                 taken[side, lv] = True
         # ---- crossing edge-edge
@@ -845,38 +949,39 @@ def narrow_phase(pa: np.ndarray, pb: np.ndarray, x: np.ndarray, topo: SceneTopol
                     continue
                 vb = pv_start[b_p] + lb
                 gap, nc, best = _vertex_vertex_plane(
-                    va, vb, x, pv_vtx, f_normal, f_tag, pv_faces, pv_dir, pv_nb_real, r, snap,
-                    ang, parallel, entrance, cand, cvalid, cface, ctag, adm, adm_gap, delta)
+                    va, vb, x, pv_vtx, f_normal, f_tag, pv_faces, pv_nfaces, pv_dir, pv_ndir,
+                    pv_nb_real, r, snap, ang, parallel, entrance, cand, cface, ctag, adm,
+                    adm_gap, delta)
                 if best >= 0 and gap > best_gap + snap:  # ties: the first vertex
                     best_b, best_gap = vb, gap
+                    vv_nc[m], vv_best[m] = nc, best
+                    _keep_candidates(nc, cand, adm, cface, ctag, vv_cand[m], vv_adm[m],
+                                     vv_face[m], vv_tag[m])
             # no deeper than the pair's shallowest face exit (as vertex-edge)
             if best_b >= 0 and not (best_gap < -snap and best_gap < exit_gap - snap):
                 vv_a[m], vv_b[m], vv_gap[m] = va, best_b, best_gap
                 m += 1
         # one contact per vertex of block j's piece too: the largest gap, first on ties
         for s_ in range(m):
-            keep = True
+            alone = True
             for t in range(m):
                 if t != s_ and vv_b[t] == vv_b[s_] and (
                         vv_gap[t] > vv_gap[s_] or (vv_gap[t] == vv_gap[s_] and t < s_)):
-                    keep = False
+                    alone = False
                     break
-            if not keep:
+            if not alone:
                 continue
-            va, vb = vv_a[s_], vv_b[s_]
-            gap, nc, best = _vertex_vertex_plane(
-                va, vb, x, pv_vtx, f_normal, f_tag, pv_faces, pv_dir, pv_nb_real, r, snap, ang,
-                parallel, entrance, cand, cvalid, cface, ctag, adm, adm_gap, delta)
+            va, vb, nc, best = vv_a[s_], vv_b[s_], vv_nc[s_], vv_best[s_]
             ri, rf, out_c = _reserve(ri, rf, out_c, k, q, 1, nc)
             q0 = q
-            q = _copy_unique(cand, adm, nc, parallel, ukeep, out_c, q, False)
-            tag = ctag[best] if cface[best] else _plane_tag(
-                pv_faces[va], pv_faces[vb], f_tag, f_normal, cand[best], cos_tag)
+            q = _copy_unique(vv_cand[s_], vv_adm[s_], nc, parallel, ukeep, out_c, q, False)
+            tag = vv_tag[s_, best] if vv_face[s_, best] else _plane_tag(
+                pv_faces[va], pv_faces[vb], f_tag, f_normal, vv_cand[s_, best], cos_tag)
             _emit(ri, rf, k, bi, bj, VERTEX_VERTEX,
                   feature_code(piece_local[a_p], FEATURE_VERTEX, v_local[pv_vtx[va]]),
                   feature_code(piece_local[b_p], FEATURE_VERTEX, v_local[pv_vtx[vb]]),
                   tag, pv_vtx[va], False, q - q0, pair,
-                  x[pv_vtx[va]], x[pv_vtx[vb]], cand[best], gap)
+                  x[pv_vtx[va]], x[pv_vtx[vb]], vv_cand[s_, best], vv_gap[s_])
             k += 1
     return ri[:k], rf[:k], out_c[:q]
 
@@ -945,20 +1050,12 @@ def _within_segment(p: np.ndarray, x: np.ndarray, e_vtx: np.ndarray, e_dir: np.n
 
 
 @njit(**_OPTS)
-def _vertex_edge_plane(e: int, pv: int, x: np.ndarray, v_surface: np.ndarray,
-                       e_vtx: np.ndarray, e_dir: np.ndarray, e_faces: np.ndarray,
-                       e_in: np.ndarray, f_normal: np.ndarray, f_tag: np.ndarray,
-                       pv_vtx: np.ndarray, pv_faces: np.ndarray, pv_dir: np.ndarray,
-                       pv_nb_real: np.ndarray, r: float, snap: float, ang: float,
-                       parallel: float, entrance: float, cand: np.ndarray,
-                       cvalid: np.ndarray, cface: np.ndarray, ctag: np.ndarray,
-                       adm: np.ndarray, adm_gap: np.ndarray, dy: np.ndarray,
-                       ry: np.ndarray, proj: np.ndarray,
-                       delta: np.ndarray) -> tuple[float, int, int]:
-    """Vertex `pv` (of X) against the interior of edge `e` (of Y): `(gap, candidates,
-    best)` with best = -1 when it is no contact; fills `proj` (the foot on the edge) and
-    the candidate scratch arrays."""
-    xv = x[pv_vtx[pv]]
+def _vertex_edge_foot(e: int, xv: np.ndarray, x: np.ndarray, v_surface: np.ndarray,
+                      e_vtx: np.ndarray, e_dir: np.ndarray, snap: float, proj: np.ndarray,
+                      delta: np.ndarray) -> tuple[bool, float]:
+    """The foot of the point `xv` on edge `e`'s line: fills `proj` and `delta = xv − proj`;
+    returns whether the foot is inside the edge (:func:`_inside_edge`) and the edge's
+    length. The cheap first test of a vertex against an edge."""
     a, u = x[e_vtx[e, 0]], e_dir[e]
     length = _norm(u)
     for j in range(3):
@@ -967,27 +1064,43 @@ def _vertex_edge_plane(e: int, pv: int, x: np.ndarray, v_surface: np.ndarray,
     for j in range(3):
         proj[j] = a[j] + t * u[j]
         delta[j] = xv[j] - proj[j]
-    if not _inside_edge(v_surface, e_vtx, e, t, length, snap):
-        return -np.inf, 0, -1
+    return _inside_edge(v_surface, e_vtx, e, t, length, snap), length
+
+
+@njit(**_OPTS)
+def _vertex_edge_plane(e: int, pv: int, length: float, e_dir: np.ndarray,
+                       e_faces: np.ndarray, e_in: np.ndarray, f_normal: np.ndarray,
+                       f_tag: np.ndarray, pv_faces: np.ndarray, pv_nfaces: np.ndarray,
+                       pv_dir: np.ndarray, pv_ndir: np.ndarray, pv_nb_real: np.ndarray,
+                       r: float, snap: float, ang: float, parallel: float, entrance: float,
+                       cand: np.ndarray, cface: np.ndarray, ctag: np.ndarray,
+                       adm: np.ndarray, adm_gap: np.ndarray, dy: np.ndarray,
+                       ry: np.ndarray, delta: np.ndarray) -> tuple[float, int, int]:
+    """Vertex `pv` (of X) against the interior of edge `e` (of Y) of `length`, its foot
+    inside the edge at `delta` from the vertex (:func:`_vertex_edge_foot`): `(gap,
+    candidates, best)` with best = -1 when it is no contact; fills the candidate scratch
+    arrays."""
     if not _norm(delta) < r:
         return -np.inf, 0, -1
     for c in range(2):
         f = e_faces[e, c]
         cand[c] = f_normal[f]
-        cvalid[c] = True
         cface[c] = True
         ctag[c] = f_tag[f]
-    nc = _face_candidates(pv_faces, f_normal, f_tag, pv, -1.0, cand, cvalid, cface, ctag, 2)
+    nc = _face_candidates(pv_faces, pv_nfaces, f_normal, f_tag, pv, -1.0, cand, cface, ctag,
+                          2)
+    u = e_dir[e]
     for j in range(3):
         dy[0, j] = u[j] / length
         dy[1, j] = -dy[0, j]
         dy[2, j] = e_in[e, 0, j]
         dy[3, j] = e_in[e, 1, j]
     ry[0] = True
-    nc = _cross_candidates(pv_dir[pv], pv_nb_real[pv], dy, ry, 1, parallel, cand, cvalid,
-                           cface, ctag, nc)
-    best = _select_planes(cand, cvalid, cface, nc, pv_dir[pv], dy, 4, delta, entrance, snap,
-                          ang, adm, adm_gap)
+    nd = pv_ndir[pv]
+    nc = _cross_candidates(pv_dir[pv], nd, pv_nb_real[pv], dy, ry, 1, parallel, cand, cface,
+                           ctag, nc)
+    best = _select_planes(cand, cface, nc, pv_dir[pv], nd, dy, 4, delta, entrance, snap, ang,
+                          adm, adm_gap)
     if best < 0:
         return -np.inf, nc, -1
     return _dot(delta, cand[best]), nc, best
@@ -996,11 +1109,11 @@ def _vertex_edge_plane(e: int, pv: int, x: np.ndarray, v_surface: np.ndarray,
 @njit(**_OPTS)
 def _vertex_vertex_plane(va: int, vb: int, x: np.ndarray, pv_vtx: np.ndarray,
                          f_normal: np.ndarray, f_tag: np.ndarray, pv_faces: np.ndarray,
-                         pv_dir: np.ndarray, pv_nb_real: np.ndarray, r: float, snap: float,
-                         ang: float, parallel: float, entrance: float, cand: np.ndarray,
-                         cvalid: np.ndarray, cface: np.ndarray, ctag: np.ndarray,
-                         adm: np.ndarray, adm_gap: np.ndarray, delta: np.ndarray
-                         ) -> tuple[float, int, int]:
+                         pv_nfaces: np.ndarray, pv_dir: np.ndarray, pv_ndir: np.ndarray,
+                         pv_nb_real: np.ndarray, r: float, snap: float, ang: float,
+                         parallel: float, entrance: float, cand: np.ndarray,
+                         cface: np.ndarray, ctag: np.ndarray, adm: np.ndarray,
+                         adm_gap: np.ndarray, delta: np.ndarray) -> tuple[float, int, int]:
     """Vertex `va` (of block i's piece) against vertex `vb` (of block j's): `(gap,
     candidates, best)` with best = -1 when it is no contact."""
     xa, xb = x[pv_vtx[va]], x[pv_vtx[vb]]
@@ -1008,16 +1121,32 @@ def _vertex_vertex_plane(va: int, vb: int, x: np.ndarray, pv_vtx: np.ndarray,
         delta[j] = xa[j] - xb[j]
     if not _norm(delta) < r:
         return -np.inf, 0, -1
-    nc = _face_candidates(pv_faces, f_normal, f_tag, vb, 1.0, cand, cvalid, cface, ctag, 0)
-    nc = _face_candidates(pv_faces, f_normal, f_tag, va, -1.0, cand, cvalid, cface, ctag, nc)
+    nc = _face_candidates(pv_faces, pv_nfaces, f_normal, f_tag, vb, 1.0, cand, cface, ctag, 0)
+    nc = _face_candidates(pv_faces, pv_nfaces, f_normal, f_tag, va, -1.0, cand, cface, ctag,
+                          nc)
     dy = pv_dir[vb]
-    nc = _cross_candidates(pv_dir[va], pv_nb_real[va], dy, pv_nb_real[vb], len(dy), parallel,
-                           cand, cvalid, cface, ctag, nc)
-    best = _select_planes(cand, cvalid, cface, nc, pv_dir[va], dy, len(dy), delta, entrance,
-                          snap, ang, adm, adm_gap)
+    na, nb = pv_ndir[va], pv_ndir[vb]
+    nc = _cross_candidates(pv_dir[va], na, pv_nb_real[va], dy, pv_nb_real[vb], nb, parallel,
+                           cand, cface, ctag, nc)
+    best = _select_planes(cand, cface, nc, pv_dir[va], na, dy, nb, delta, entrance, snap, ang,
+                          adm, adm_gap)
     if best < 0:
         return -np.inf, nc, -1
     return _dot(delta, cand[best]), nc, best
+
+
+@njit(**_OPTS)
+def _keep_candidates(nc: int, cand: np.ndarray, adm: np.ndarray, cface: np.ndarray,
+                     ctag: np.ndarray, k_cand: np.ndarray, k_adm: np.ndarray,
+                     k_face: np.ndarray, k_tag: np.ndarray) -> None:
+    """Copy the first `nc` candidates and what the plane selection made of them into the
+    `k_*` arrays (the winner's, so that emitting it needs no second evaluation)."""
+    for c in range(nc):
+        for j in range(3):
+            k_cand[c, j] = cand[c, j]
+        k_adm[c] = adm[c]
+        k_face[c] = cface[c]
+        k_tag[c] = ctag[c]
 
 
 @njit(**_OPTS)

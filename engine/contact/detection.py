@@ -34,12 +34,13 @@ from engine.contact._detection_kernels import (
     feature_code,
 )
 from engine.contact.constraints import LOCKED, OPEN, ContactSet
+from engine.dynamics.assembly import spare_core
 from engine.geometry.polyhedron import ConvexPiece, Polyhedron, edge_topology
 from engine.tolerances import DEFAULT_TOLERANCES, Tolerances
 
 #: piece pairs from which the narrow phase runs in slices on threads, as many as numba is
-#: configured for (the kernel releases the GIL; rows are joined in pair order, so the
-#: contacts are the same)
+#: configured for, when a core is spare (the kernel releases the GIL; rows are joined in
+#: pair order, so the contacts are the same)
 THREADED_MIN_PAIRS = 2048
 
 _I64 = np.int64
@@ -222,6 +223,8 @@ class _Scene:
     pv_nb: np.ndarray  # (V, D) g, -1 pad
     pv_nb_real: np.ndarray
     pv_faces: np.ndarray  # (V, Df) global faces, -1 pad
+    pv_ndir: np.ndarray  # (V,) neighbours (the first ones of pv_nb; the rest pad)
+    pv_nfaces: np.ndarray  # (V,) real faces (the first ones of pv_faces)
 
     @cached_property
     def topology(self) -> kern.SceneTopology:
@@ -286,6 +289,8 @@ def _build_scene(blocks: Sequence[Polyhedron]) -> _Scene:
     fs, fc = starts(f_count)
     es, ec = starts(e_count)
     ps, pc = starts(pv_count)
+    pv_nb = _cat_padded(pvnb, -1, voffs)
+    pv_faces = _cat_padded(pvf, -1, foffs)
     return _Scene(
         nv=vo, block_piece0=np.searchsorted(np.asarray(pblock, dtype=_I64),
                                             np.arange(len(blocks))),
@@ -302,8 +307,9 @@ def _build_scene(blocks: Sequence[Polyhedron]) -> _Scene:
         e_vtx=np.concatenate(ev), e_faces=np.concatenate(ef), e_local=np.concatenate(eloc),
         e_real=np.concatenate(ereal), e_slot=np.concatenate(eslot),
         pv_vtx=np.concatenate(pvv), pv_surface=np.concatenate(pvs),
-        pv_nb=_cat_padded(pvnb, -1, voffs), pv_nb_real=_cat_padded(pvnbr, False),
-        pv_faces=_cat_padded(pvf, -1, foffs),
+        pv_nb=pv_nb, pv_nb_real=_cat_padded(pvnbr, False), pv_faces=pv_faces,
+        pv_ndir=(pv_nb >= 0).sum(axis=1).astype(_I64),
+        pv_nfaces=(pv_faces >= 0).sum(axis=1).astype(_I64),
     )
 
 
@@ -330,6 +336,92 @@ def _scene(blocks: Sequence[Polyhedron]) -> _Scene:
 # --------------------------------------------------------------------------- public API
 
 
+@dataclass
+class Search:
+    """One contact search's inputs: the scene's flat topology, the vertex positions `x
+    (V, 3)`, each block's reach `(n,)` m, the piece boxes `p_lo`, `p_hi (P, 3)` and the
+    feature snap (m) of the scene's current size."""
+
+    scene: _Scene
+    x: np.ndarray
+    reach: np.ndarray
+    p_lo: np.ndarray
+    p_hi: np.ndarray
+    snap: float
+    tol: Tolerances
+
+    @property
+    def extent(self) -> float:
+        """The scene's size (m): the largest side of the box of all pieces."""
+        return float((self.p_hi.max(axis=0) - self.p_lo.min(axis=0)).max())
+
+
+def start_search(blocks: Sequence[Polyhedron], search_distance: float | np.ndarray,
+                 tol: Tolerances = DEFAULT_TOLERANCES, vertices: np.ndarray | None = None
+                 ) -> Search:
+    """The :class:`Search` of `blocks` at `vertices` (default: the blocks' own) within
+    `search_distance` (one distance, or each block's reach; see :func:`detect_contacts`)."""
+    s = _scene(blocks)
+    if vertices is None:
+        x = np.concatenate([b.vertices for b in blocks]).astype(float, copy=False)
+    else:
+        x = np.ascontiguousarray(vertices, dtype=float)
+        if x.shape != (s.nv, 3):
+            raise ValueError(f"vertices has shape {x.shape}, expected one row per block "
+                             "vertex")
+    if np.ndim(search_distance) == 0:
+        reach = np.full(len(blocks), 0.5 * float(search_distance))
+    else:
+        reach = np.ascontiguousarray(search_distance, dtype=float)
+        if reach.shape != (len(blocks),):
+            raise ValueError(f"search_distance has shape {reach.shape}, expected a number "
+                             "or one reach per block")
+    p_lo, p_hi = kern.piece_boxes(x, s.pv_vtx, s.pv_start, s.pv_count)
+    # the scene's size from the piece boxes (every vertex belongs to a piece)
+    snap = tol.lengths(float((p_hi.max(axis=0) - p_lo.min(axis=0)).max())).feature_snap
+    return Search(s, x, reach, p_lo, p_hi, snap, tol)
+
+
+def broad_phase(search: Search, grow: np.ndarray, active: np.ndarray | None
+                ) -> tuple[np.ndarray, np.ndarray]:
+    """The piece pairs `(pa of block i, pb of block j)` whose boxes, each grown by its
+    block's `grow (n,)` m, overlap, with one block `active` (all when None): block boxes
+    swept first, then their pieces; in block pair order, then piece order."""
+    s = search.scene
+    blo = np.minimum.reduceat(search.p_lo, s.block_piece0, axis=0)
+    bhi = np.maximum.reduceat(search.p_hi, s.block_piece0, axis=0)
+    pairs = kern.sweep_pairs(blo - grow[:, None], bhi + grow[:, None])
+    if active is not None:
+        act = np.asarray(active, dtype=bool)
+        pairs = np.ascontiguousarray(pairs[act[pairs[:, 0]] | act[pairs[:, 1]]])
+    if len(pairs) == 0:
+        return np.zeros(0, dtype=_I64), np.zeros(0, dtype=_I64)
+    return kern.piece_pairs(pairs, s.piece_block, search.p_lo, search.p_hi, grow)
+
+
+def narrow(search: Search, pa: np.ndarray, pb: np.ndarray,
+           keep: kern.SkinLists | None = None) -> ContactSet:
+    """The contacts of the piece pairs `pa`, `pb` (:func:`broad_phase`; or a skin's pairs
+    and candidate features `keep`, which finds the same ones), duplicates merged, ordered
+    by key. The geometry (normals, edge and neighbour directions) is computed for the
+    pieces of the pairs only."""
+    if len(pa) == 0:
+        return ContactSet()
+    s, x = search.scene, search.x
+    parallel = float(search.tol.parallel)
+    pieces = np.zeros(len(s.pv_start), dtype=bool)
+    pieces[pa] = True
+    pieces[pb] = True
+    geo = kern.SceneGeometry(*kern.geometry(
+        x, s.f_vtx, s.f_nxt, s.e_vtx, s.e_faces, s.pv_vtx, s.pv_nb, s.f_start, s.f_count,
+        s.e_start, s.e_count, s.pv_start, s.pv_count, pieces, parallel),
+        search.p_lo, search.p_hi)
+    ri, rf, cand = _narrow_phase(pa, pb, x, s.topology, geo, search.reach, search.snap,
+                                 parallel, search.tol.entrance,
+                                 kern.no_skin() if keep is None else keep)
+    return _to_contact_set(ri, rf, cand, search.snap, parallel, len(s.block_piece0))
+
+
 def detect_contacts(blocks: Sequence[Polyhedron], search_distance: float | np.ndarray,
                     active: np.ndarray | None = None,
                     tol: Tolerances = DEFAULT_TOLERANCES,
@@ -347,58 +439,33 @@ def detect_contacts(blocks: Sequence[Polyhedron], search_distance: float | np.nd
     """
     if len(blocks) < 2:
         return ContactSet()
-    s = _scene(blocks)
-    if vertices is None:
-        x = np.concatenate([b.vertices for b in blocks]).astype(float, copy=False)
-    else:
-        x = np.ascontiguousarray(vertices, dtype=float)
-        if x.shape != (s.nv, 3):
-            raise ValueError(f"vertices has shape {x.shape}, expected one row per block "
-                             "vertex")
-    if np.ndim(search_distance) == 0:
-        reach = np.full(len(blocks), 0.5 * float(search_distance))
-    else:
-        reach = np.ascontiguousarray(search_distance, dtype=float)
-        if reach.shape != (len(blocks),):
-            raise ValueError(f"search_distance has shape {reach.shape}, expected a number "
-                             "or one reach per block")
-    parallel = float(tol.parallel)
-    geo = kern.SceneGeometry(*kern.geometry(x, s.f_vtx, s.f_nxt, s.e_vtx, s.e_faces, s.pv_vtx,
-                                            s.pv_nb, s.pv_start, s.pv_count, parallel))
-    p_lo, p_hi = geo.p_lo, geo.p_hi
-    # the scene's size from the piece boxes (every vertex belongs to a piece)
-    snap = tol.lengths(float((p_hi.max(axis=0) - p_lo.min(axis=0)).max())).feature_snap
-    # broad phase on block boxes, then on piece boxes
-    blo = np.minimum.reduceat(p_lo, s.block_piece0, axis=0)
-    bhi = np.maximum.reduceat(p_hi, s.block_piece0, axis=0)
-    inflate = reach + snap
-    pairs = kern.sweep_pairs(blo - inflate[:, None], bhi + inflate[:, None])
-    if active is not None:
-        act = np.asarray(active, dtype=bool)
-        pairs = np.ascontiguousarray(pairs[act[pairs[:, 0]] | act[pairs[:, 1]]])
-    if len(pairs) == 0:
-        return ContactSet()
-    pa, pb = kern.piece_pairs(pairs, s.piece_block, p_lo, p_hi, inflate)
-    ri, rf, cand = _narrow_phase(pa, pb, x, s.topology, geo, reach, snap, parallel,
-                                 tol.entrance)
-    return _to_contact_set(ri, rf, cand, snap, parallel, len(blocks))
+    search = start_search(blocks, search_distance, tol, vertices)
+    pa, pb = broad_phase(search, search.reach + search.snap, active)
+    return narrow(search, pa, pb)
 
 
 def _narrow_phase(pa: np.ndarray, pb: np.ndarray, x: np.ndarray, topo: kern.SceneTopology,
                   geo: kern.SceneGeometry, reach: np.ndarray, snap: float, parallel: float,
-                  entrance: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+                  entrance: float, keep: kern.SkinLists
+                  ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """:func:`engine.contact._detection_kernels.narrow_phase` of the piece pairs `pa`, `pb`, in
     as many slices as numba's configured threads when there are enough pairs, joined in
     order (`numba.get_num_threads()` would launch numba's threading layer, a thread of its
     own under TBB or workqueue)."""
     args = (x, topo, geo, reach, snap, float(np.sqrt(2.0 * parallel)), parallel, entrance)
     threads = numba.config.NUMBA_NUM_THREADS
-    if threads < 2 or len(pa) < THREADED_MIN_PAIRS:
-        return kern.narrow_phase(pa, pb, *args)
+    if threads < 2 or len(pa) < THREADED_MIN_PAIRS or not spare_core():
+        return kern.narrow_phase(pa, pb, *args, keep)
     cuts = np.linspace(0, len(pa), threads + 1).astype(np.int64)
+
+    def part(q: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        lo, hi = cuts[q], cuts[q + 1]
+        sliced = keep if len(keep.v_ptr) == 0 else keep._replace(
+            v_ptr=keep.v_ptr[lo:hi + 1], e_ptr=keep.e_ptr[lo:hi + 1])
+        return kern.narrow_phase(pa[lo:hi], pb[lo:hi], *args, sliced)
+
     with ThreadPoolExecutor(threads) as pool:
-        parts = list(pool.map(lambda q: kern.narrow_phase(
-            pa[cuts[q]:cuts[q + 1]], pb[cuts[q]:cuts[q + 1]], *args), range(threads)))
+        parts = list(pool.map(part, range(threads)))
     for q, (ri, _, _) in enumerate(parts):
         ri[:, kern.RI_PAIR] += cuts[q]
     return (np.concatenate([p[0] for p in parts]), np.concatenate([p[1] for p in parts]),

@@ -222,3 +222,114 @@ def bsr_to_dense(indptr: np.ndarray, indices: np.ndarray, data: np.ndarray) -> n
                 for q in range(d):
                     out[r * d + p, col * d + q] = data[s, p, q]
     return out
+
+
+# --------------------------------------------------------------------------- on threads
+# The same sums on numba's threads, each output written by one thread and summed in the
+# serial kernels' order (contacts in order per BSR block, per unknown), so that the values
+# are the same bits whatever the number of threads.
+
+
+@nb.njit(cache=True)
+def row_contacts(m: int, fi: np.ndarray, fj: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The contacts of each of `m` rows (block rows, or blocks) as `(ptr (m + 1,), entries)`:
+    row r's are `entries[ptr[r]:ptr[r + 1]]`, each `2 k` (the row is contact k's `fi`) or
+    `2 k + 1` (its `fj`), in contact order; rows < 0 (fixed blocks) have none."""
+    ptr = np.zeros(m + 1, dtype=np.int64)
+    for k in range(len(fi)):
+        if fi[k] >= 0:
+            ptr[fi[k] + 1] += 1
+        if fj[k] >= 0:
+            ptr[fj[k] + 1] += 1
+    for r in range(m):
+        ptr[r + 1] += ptr[r]
+    fill = ptr[:-1].copy()
+    entries = np.empty(ptr[m], dtype=np.int64)
+    for k in range(len(fi)):
+        if fi[k] >= 0:
+            entries[fill[fi[k]]] = 2 * k
+            fill[fi[k]] += 1
+        if fj[k] >= 0:
+            entries[fill[fj[k]]] = 2 * k + 1
+            fill[fj[k]] += 1
+    return ptr, entries
+
+
+@nb.njit(cache=True, inline="always")
+def _row_terms(data: np.ndarray, ti: np.ndarray, tj: np.ndarray, normal: np.ndarray,
+               slot_ii: np.ndarray, slot_jj: np.ndarray, slot_ij: np.ndarray,
+               slot_ji: np.ndarray, kn: np.ndarray, ks: np.ndarray, ptr: np.ndarray,
+               entries: np.ndarray, r: int) -> None:
+    """Add to block row `r`'s BSR blocks the terms :func:`update_bsr` adds there for every
+    contact with stiffness (the diagonal block and, as block i, the ij block; as block j,
+    the ji block), in contact order, with its expressions."""
+    d = data.shape[1]
+    a, b = np.empty(d), np.empty(d)
+    for t in range(ptr[r], ptr[r + 1]):
+        k, role = entries[t] >> 1, entries[t] & 1
+        wn, ws = kn[k], ks[k]
+        if wn == 0.0 and ws == 0.0:
+            continue
+        n0, n1, n2 = normal[k, 0], normal[k, 1], normal[k, 2]
+        for p in range(d):
+            a[p] = n0 * ti[k, 0, p] + n1 * ti[k, 1, p] + n2 * ti[k, 2, p]
+            b[p] = n0 * tj[k, 0, p] + n1 * tj[k, 1, p] + n2 * tj[k, 2, p]
+        own, cross = (slot_ii[k], slot_ij[k]) if role == 0 else (slot_jj[k], slot_ji[k])
+        for p in range(d):
+            for q in range(d):
+                if role == 0:
+                    nii = a[p] * a[q]
+                    sii = (ti[k, 0, p] * ti[k, 0, q] + ti[k, 1, p] * ti[k, 1, q]
+                           + ti[k, 2, p] * ti[k, 2, q]) - nii
+                    data[own, p, q] += wn * nii + ws * sii
+                else:
+                    njj = b[p] * b[q]
+                    sjj = (tj[k, 0, p] * tj[k, 0, q] + tj[k, 1, p] * tj[k, 1, q]
+                           + tj[k, 2, p] * tj[k, 2, q]) - njj
+                    data[own, p, q] += wn * njj + ws * sjj
+                if cross >= 0:
+                    nij = -a[p] * b[q]
+                    sij = -(ti[k, 0, p] * tj[k, 0, q] + ti[k, 1, p] * tj[k, 1, q]
+                            + ti[k, 2, p] * tj[k, 2, q]) - nij
+                    v = wn * nij + ws * sij
+                    if role == 0:
+                        data[cross, p, q] += v
+                    else:
+                        data[cross, q, p] += v
+
+
+@nb.njit(cache=True, parallel=True)
+def fill_bsr_threads(base: np.ndarray, ti: np.ndarray, tj: np.ndarray, normal: np.ndarray,
+                     slot_ii: np.ndarray, slot_jj: np.ndarray, slot_ij: np.ndarray,
+                     slot_ji: np.ndarray, kn: np.ndarray, ks: np.ndarray,
+                     ptr: np.ndarray, entries: np.ndarray) -> np.ndarray:
+    """:func:`fill_bsr` with the block rows on numba's threads; `ptr`, `entries`: each
+    block row's contacts (:func:`row_contacts` of the contacts' block rows)."""
+    data = base.copy()
+    for r in nb.prange(len(ptr) - 1):
+        _row_terms(data, ti, tj, normal, slot_ii, slot_jj, slot_ij, slot_ji, kn, ks, ptr,
+                   entries, r)
+    return data
+
+
+@nb.njit(cache=True, parallel=True)
+def relative_displacement_threads(x: np.ndarray, dof_map: np.ndarray, bi: np.ndarray,
+                                  bj: np.ndarray, ti: np.ndarray,
+                                  tj: np.ndarray) -> np.ndarray:
+    """:func:`relative_displacement` with the contacts on numba's threads."""
+    c, _, d = ti.shape
+    out = np.zeros((c, 3))
+    for k in nb.prange(c):
+        a, b = bi[k], bj[k]
+        for q in range(d):
+            ia = dof_map[a, q]
+            if ia >= 0:
+                xa = x[ia]
+                for r in range(3):
+                    out[k, r] += ti[k, r, q] * xa
+            ib = dof_map[b, q]
+            if ib >= 0:
+                xb = x[ib]
+                for r in range(3):
+                    out[k, r] -= tj[k, r, q] * xb
+    return out

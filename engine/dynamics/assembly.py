@@ -10,6 +10,9 @@ blocks and pairs in contact, not the number of contact points.
 
 from __future__ import annotations
 
+import dataclasses
+import os
+import time
 from dataclasses import dataclass
 
 import numpy as np
@@ -20,9 +23,13 @@ from engine.dynamics._assembly_kernels import (
     bsr_to_dense,
     coupled_components,
     fill_bsr,
+    fill_bsr_threads,
+    relative_displacement,
+    relative_displacement_threads,
+    row_contacts,
     update_bsr,
 )
-from engine.geometry._transform_kernels import TA
+from engine.geometry._transform_kernels import TA, contact_matrices, contact_matrices_threads
 from engine.geometry.transforms import displacement_matrices  # noqa: F401 (asm.)
 
 #: the T_aᵀ T_b of the second moments C_ab, flattened (9, 144)
@@ -65,6 +72,60 @@ def scatter_vector(dof_map: np.ndarray, block: np.ndarray, values: np.ndarray,
 #: systems with at most this many unknowns are assembled and factorized dense: for a few
 #: blocks the sparse machinery costs more than the arithmetic
 DENSE_MAX_UNKNOWNS = 120
+
+#: per-contact loops run on numba's threads (NUMBA_NUM_THREADS, the cores by default) from
+#: this many contacts on, when a core is spare (:func:`spare_core`); each output is summed
+#: by one thread in the serial order, so the values do not depend on the number of threads.
+#: Measured by `python -m benchmarks.bench_work` (benchmarks/REPORT.md section 8): a
+#: parallel region costs ~20 µs on free cores, and beside busy processes the threads lose
+#: at every size (a region waits for its slowest thread's turn on a core)
+THREADS_MIN_CONTACTS = 4000
+#: how long (s) a reading of the load average serves
+_LOAD_TTL = 1.0
+_load: list[float] = [-1.0, 0.0]  # (when, spare) of the last reading
+
+
+def spare_core() -> bool:
+    """Whether the machine has a core to spare for a second thread: its one-minute load
+    average (this process included) at most its cores less one (read at most once a
+    second)."""
+    now = time.monotonic()
+    if now - _load[0] > _LOAD_TTL:
+        try:
+            load = os.getloadavg()[0]
+        except OSError:  # no load average (not a Unix): assume the cores are free
+            load = 0.0
+        _load[0], _load[1] = now, float(load <= (os.cpu_count() or 1) - 1)
+    return bool(_load[1])
+
+
+def threaded(count: int) -> bool:
+    """Whether loops over `count` contacts run on numba's threads: from
+    THREADS_MIN_CONTACTS on, with more than one configured and a core spare (reading
+    numba's configured count does not launch its threading layer)."""
+    import numba
+
+    return (numba.config.NUMBA_NUM_THREADS > 1 and count >= THREADS_MIN_CONTACTS
+            and spare_core())
+
+
+def point_matrices(points: np.ndarray, centroids: np.ndarray, block: np.ndarray,
+                   nd: int) -> np.ndarray:
+    """T at contact points `points (c, 3)` of blocks `block (c,)` on the first `nd`
+    unknowns `(c, 3, nd)` (contiguous; the values of `displacement_matrices(points,
+    centroids[block])[:, :, :nd]`), on threads for many contacts."""
+    points = np.ascontiguousarray(points, dtype=np.float64)
+    block = np.ascontiguousarray(block, dtype=np.int64)
+    centroids = np.ascontiguousarray(centroids, dtype=np.float64)
+    kernel = contact_matrices_threads if threaded(len(points)) else contact_matrices
+    return kernel(points, centroids, block, nd)
+
+
+def relative_motion(x: np.ndarray, dof_map: np.ndarray, bi: np.ndarray, bj: np.ndarray,
+                    ti: np.ndarray, tj: np.ndarray) -> np.ndarray:
+    """Tᵢ Dᵢ − Tⱼ Dⱼ `(c, 3)` of the solution `x` at the contacts (on threads for many)."""
+    kernel = relative_displacement_threads if threaded(len(bi)) else relative_displacement
+    return kernel(x, dof_map, bi, bj, ti, tj)
 
 
 def contact_stiffness(
@@ -124,6 +185,8 @@ class SystemPlan:
     last: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
     #: the last BSR data and the matrix wrapping it (a view: an update in place shows)
     bsr: tuple[np.ndarray, sp.bsr_matrix] | None = None
+    #: each block row's contacts (:func:`row_contacts`), for filling on threads
+    rows: tuple[np.ndarray, np.ndarray] | None = None
 
     def matrix(self, kn: np.ndarray, ks: np.ndarray) -> tuple[sp.bsr_matrix | np.ndarray,
                                                                np.ndarray]:
@@ -148,10 +211,22 @@ class SystemPlan:
         dblk = data[self.diag_slot]
         if self.dense:
             return bsr_to_dense(self.indptr, self.indices, data), dblk
-        if self.bsr is None or self.bsr[0] is not data:  # else K was updated in place
+        if self.bsr is None:
             n = self.m * self.d
             self.bsr = (data, sp.bsr_matrix((data, self.indices, self.indptr), shape=(n, n)))
+        elif self.bsr[0] is not data:  # filled afresh (else K was updated in place): the
+            self.bsr[1].data = data  # same pattern, so the matrix takes the new values
+            self.bsr = (data, self.bsr[1])
         return self.bsr[1], dblk
+
+    def pattern(self) -> SystemPlan:
+        """This plan without its values (no block terms, contact matrices or K): what
+        :func:`plan_system` needs of it to keep its pattern for the next step, held at the
+        cost of a few integers per contact."""
+        empty = np.zeros((0, 3, self.d))
+        return dataclasses.replace(self, base=np.zeros((0, self.d, self.d)), ti=empty,
+                                   tj=empty, normal=np.zeros((0, 3)), components=None,
+                                   last=None, bsr=None)
 
     def _data(self, kn: np.ndarray, ks: np.ndarray) -> np.ndarray:
         """BSR data of K for `kn`, `ks`: the last K updated in place by the contacts
@@ -168,8 +243,15 @@ class SystemPlan:
                            kn[changed] - last[0][changed], ks[changed] - last[1][changed])
                 self.last = (kn.copy(), ks.copy(), data)
                 return data
-        data = fill_bsr(self.base, self.ti, self.tj, self.normal, self.slot_ii, self.slot_jj,
-                        self.slot_ij, self.slot_ji, kn, ks)
+        if threaded(len(kn)) and not self.dense:
+            if self.rows is None:
+                self.rows = row_contacts(self.m, self.fi, self.fj)
+            data = fill_bsr_threads(self.base, self.ti, self.tj, self.normal, self.slot_ii,
+                                    self.slot_jj, self.slot_ij, self.slot_ji, kn, ks,
+                                    *self.rows)
+        else:
+            data = fill_bsr(self.base, self.ti, self.tj, self.normal, self.slot_ii,
+                            self.slot_jj, self.slot_ij, self.slot_ji, kn, ks)
         self.last = (kn.copy(), ks.copy(), data)
         return data
 
@@ -183,17 +265,26 @@ UPDATE_MIN_CONTACTS = 512
 
 def plan_system(
     row_of: np.ndarray, diag: np.ndarray, bi: np.ndarray, bj: np.ndarray,
-    ti: np.ndarray, tj: np.ndarray, normal: np.ndarray,
+    ti: np.ndarray, tj: np.ndarray, normal: np.ndarray, last: SystemPlan | None = None,
 ) -> SystemPlan:
     """The :class:`SystemPlan` of one step. `row_of (n,) int` is each block's block row
     (-1 for fixed blocks, rows in block order), `diag (n, d, d)` the block terms; contacts
     `bi`, `bj (c,)` with `ti`, `tj (c, 3, d)` and `normal (c, 3)`. K is dense for systems
-    of at most DENSE_MAX_UNKNOWNS unknowns, else block-sparse (BSR)."""
+    of at most DENSE_MAX_UNKNOWNS unknowns, else block-sparse (BSR). `last`: an earlier
+    plan (the last step's) whose pattern is kept when its contacts join the same block rows
+    in the same order (the contact pairs a skin keeps), so only the values are filled."""
     d = diag.shape[1]
     m = int(row_of.max(initial=-1)) + 1
     fi = np.ascontiguousarray(row_of[bi], dtype=np.int64)
     fj = np.ascontiguousarray(row_of[bj], dtype=np.int64)
-    indptr, indices, diag_slot, sii, sjj, sij, sji = bsr_pattern(m, fi, fj)
+    if (last is not None and last.m == m and last.d == d and np.array_equal(last.fi, fi)
+            and np.array_equal(last.fj, fj)):
+        fi, fj, rows = last.fi, last.fj, last.rows
+        indptr, indices, diag_slot = last.indptr, last.indices, last.diag_slot
+        sii, sjj, sij, sji = last.slot_ii, last.slot_jj, last.slot_ij, last.slot_ji
+    else:
+        rows = None
+        indptr, indices, diag_slot, sii, sjj, sij, sji = bsr_pattern(m, fi, fj)
     base = np.zeros((len(indices), d, d))
     base[diag_slot] = diag[row_of >= 0]
     return SystemPlan(m=m, d=d, base=base, indptr=indptr, indices=indices,
@@ -201,4 +292,4 @@ def plan_system(
                       tj=np.ascontiguousarray(tj, dtype=np.float64),
                       normal=np.ascontiguousarray(normal, dtype=np.float64), fi=fi, fj=fj,
                       slot_ii=sii, slot_jj=sjj, slot_ij=sij, slot_ji=sji,
-                      dense=m * d <= DENSE_MAX_UNKNOWNS)
+                      dense=m * d <= DENSE_MAX_UNKNOWNS, rows=rows)

@@ -38,9 +38,13 @@ def mass_matrices(system: BlockSystem, state: State) -> np.ndarray:
 
 
 def current_vertices(system: BlockSystem, state: State) -> np.ndarray:
-    """Current positions `(V, 3)` of all blocks' vertices, stacked in block order."""
-    return block_vertices(state.centroid, state.affine, system.vertex_block,
-                          system.vertex_rel0)
+    """Current positions `(V, 3)` of all blocks' vertices, stacked in block order (once per
+    state: the update that made the state computed them)."""
+    hit = state.cache.get("vertices")
+    if hit is None:
+        hit = state.cache["vertices"] = block_vertices(state.centroid, state.affine,
+                                                       system.vertex_block, system.vertex_rel0)
+    return hit
 
 
 def current_polyhedra(system: BlockSystem, state: State) -> list[Polyhedron]:

@@ -16,12 +16,7 @@ from typing import Any
 
 import numpy as np
 
-
-def _row_keys(key: np.ndarray) -> np.ndarray:
-    """Contact keys `(c, 4) int64` as one sortable scalar per row `(c,)` (bytes)."""
-    k = np.ascontiguousarray(key, dtype=np.int64)
-    return k.view(np.dtype((np.void, k.dtype.itemsize * k.shape[1]))).ravel()
-
+from engine.dynamics._state_kernels import key_order, key_rows, sortable_keys
 
 #: the arrays of a :class:`ContactMemory`, in its field order
 MEMORY_FIELDS = ("key", "mode", "shear", "tangent", "broken", "gap", "force", "joint_material")
@@ -53,19 +48,19 @@ class ContactMemory:
             self.force = np.zeros((len(self.key), 3))
         if self.joint_material is None:
             self.joint_material = np.full(len(self.key), -1, dtype=np.int64)
-
-        order = np.argsort(_row_keys(self.key), kind="stable")
-        for name in MEMORY_FIELDS:
-            setattr(self, name, getattr(self, name)[order])
-        self._sorted = _row_keys(self.key)
+        sortable = sortable_keys(self.key)
+        order = key_order(sortable)
+        if not np.array_equal(order, np.arange(len(order))):
+            for name in MEMORY_FIELDS:
+                setattr(self, name, getattr(self, name)[order])
+            sortable = sortable[order]
+        self._sorted = sortable
 
     def find(self, key: np.ndarray) -> np.ndarray:
         """Row of each key `(c, 4)` in the memory `(c,) int`, -1 where it is not there."""
         if len(self._sorted) == 0:
             return np.full(len(key), -1, dtype=np.int64)
-        q = _row_keys(key)
-        pos = np.minimum(np.searchsorted(self._sorted, q), len(self._sorted) - 1)
-        return np.where(self._sorted[pos] == q, pos, -1)
+        return key_rows(self._sorted, sortable_keys(key))
 
     def rows(self, index: np.ndarray) -> ContactMemory:
         """The memory of the contacts `index` (boolean mask or rows), every field kept."""
@@ -99,8 +94,8 @@ class Diagnostics:
     thinner block's thickness, contacts found implausibly deep and relaxed, the Δt cuts by
     reason, what limited each step's Δt, the linear solves and K factorizations of the
     open-close iterations (failed attempts included), wall time (s) per phase (detection,
-    assembly, solve, open_close, update, output), the blocks' initial overlaps and the
-    energy balance."""
+    assembly, solve, open_close, update, damping: the dashpots after an open-close step,
+    output), the blocks' initial overlaps and the energy balance."""
 
     max_penetration: float = 0.0
     max_penetration_ratio: float = 0.0
@@ -203,6 +198,10 @@ class State:
     diagnostics: Diagnostics = field(default_factory=Diagnostics)
     #: values derived from this state, computed once (not saved)
     cache: dict[str, Any] = field(default_factory=dict, repr=False, compare=False)
+    #: what a run keeps from step to step to save work, each entry checked against the
+    #: state it serves before use (the contact detection's skin, the last K pattern): shared
+    #: by a state and the one its step makes, never saved (a resumed run rebuilds it)
+    workspace: dict[str, Any] = field(default_factory=dict, repr=False, compare=False)
 
     def awake(self, fixed: np.ndarray) -> np.ndarray:
         """The blocks that move in the next step `(n,)`: free and not asleep."""

@@ -126,3 +126,61 @@ def block_vertices(centroid: np.ndarray, affine: np.ndarray, vertex_block: np.nd
             out[v, i] = centroid[b, i] + affine[b, i, 0] * x + affine[b, i, 1] * y \
                 + affine[b, i, 2] * z
     return out
+
+
+@nb.njit(cache=True)
+def advance_blocks(d: np.ndarray, dt: float, v0: np.ndarray, fixed: np.ndarray,
+                   centroid: np.ndarray, affine: np.ndarray, rotation: np.ndarray,
+                   vertex_block: np.ndarray, rel0: np.ndarray
+                   ) -> tuple[np.ndarray, np.ndarray]:
+    """The update of a step's solution `d (n, 12)` of `dt` s in one pass: the blocks moved
+    in place (:func:`move_blocks`), the end velocities `(n, 12)` of the constant-acceleration
+    scheme `2 d / Δt − v0` (zero for `fixed` blocks) and the moved vertices `(V, 3)`
+    (:func:`block_vertices`), so that the next step's detection finds them computed."""
+    move_blocks(d, centroid, affine, rotation)
+    n, w = d.shape
+    v1 = np.empty((n, w))
+    for k in range(n):
+        for j in range(w):
+            v1[k, j] = 0.0 if fixed[k] else 2.0 * d[k, j] / dt - v0[k, j]
+    return v1, block_vertices(centroid, affine, vertex_block, rel0)
+
+
+@nb.njit(cache=True, inline="always")
+def _contact_matrix(points: np.ndarray, centroids: np.ndarray, block: np.ndarray, nd: int,
+                    k: int, out: np.ndarray) -> None:
+    """T at point `k` of block `block[k]` on its first `nd` columns, into `out[k]`:
+    `T0 + x_t TX + y_t TY + z_t TZ` term by term as :func:`displacement_matrices` sums it
+    (each entry has one nonzero term, so any order gives the same bits)."""
+    b = block[k]
+    x = points[k, 0] - centroids[b, 0]
+    y = points[k, 1] - centroids[b, 1]
+    z = points[k, 2] - centroids[b, 2]
+    for i in range(3):
+        for j in range(nd):
+            out[k, i, j] = T0[i, j] + (x * TA[0, i, j] + y * TA[1, i, j] + z * TA[2, i, j])
+
+
+@nb.njit(cache=True)
+def contact_matrices(points: np.ndarray, centroids: np.ndarray, block: np.ndarray,
+                     nd: int) -> np.ndarray:
+    """T at the contact points `points (c, 3)` of blocks `block (c,)` (centroids
+    `centroids (n, 3)`), on the first `nd` unknowns `(c, 3, nd)`: the values of
+    `displacement_matrices(points, centroids[block])[:, :, :nd]`, without its temporaries."""
+    c = points.shape[0]
+    out = np.empty((c, 3, nd))
+    for k in range(c):
+        _contact_matrix(points, centroids, block, nd, k, out)
+    return out
+
+
+@nb.njit(cache=True, parallel=True)
+def contact_matrices_threads(points: np.ndarray, centroids: np.ndarray, block: np.ndarray,
+                             nd: int) -> np.ndarray:
+    """:func:`contact_matrices` on numba's threads (each contact on its own: the same
+    values whatever the number of threads)."""
+    c = points.shape[0]
+    out = np.empty((c, 3, nd))
+    for k in nb.prange(c):
+        _contact_matrix(points, centroids, block, nd, k, out)
+    return out

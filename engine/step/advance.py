@@ -13,9 +13,10 @@ from engine.dynamics.block_terms import bolts_now, water_now
 from engine.dynamics.motion import bolt_energy, map_point, mass_matrices, mass_properties
 from engine.dynamics.state import MEMORY_FIELDS, ContactMemory, Diagnostics, State
 from engine.dynamics.system import BlockSystem
-from engine.geometry._transform_kernels import move_blocks
+from engine.geometry._transform_kernels import advance_blocks
 from engine.geometry.transforms import displacement_matrices
 from engine.loads import bolts
+from engine.step._advance_kernels import deepest_penetrations
 
 
 def spring_energy(system: BlockSystem, res: StepResult) -> float:
@@ -87,11 +88,7 @@ def _penetrations(system: BlockSystem, state: State, res: StepResult
     penetrations, the springs' re-seat loss and the bonds broken updated (a copy: the step
     may be redone)."""
     cs, gap = res.contacts, res.gap1
-    deepest = np.zeros(system.n)
-    if len(gap):
-        depth = np.maximum(-gap, 0.0)
-        np.maximum.at(deepest, cs.block_i, depth)
-        np.maximum.at(deepest, cs.block_j, depth)
+    deepest = deepest_penetrations(system.n, cs.block_i, cs.block_j, gap)
     d = state.diagnostics
     closed = cs.mode != OPEN
     pen, ratio = d.max_penetration, d.max_penetration_ratio
@@ -127,9 +124,11 @@ def advance(system: BlockSystem, state: State, res: StepResult, dt: float) -> St
     d = res.d
     centroid, affine, rotation = state.centroid.copy(), state.affine.copy(), \
         state.rotation.copy()
-    move_blocks(d, centroid, affine, rotation)
-    v1 = 2.0 * d / dt - state.velocity if res.velocity is None else res.velocity.copy()
-    v1[system.fixed] = 0.0
+    v1, vertices = advance_blocks(d, dt, state.velocity, system.fixed, centroid, affine,
+                                  rotation, system.vertex_block, system.vertex_rel0)
+    if res.velocity is not None:  # the contact solve's impact law gave them
+        v1 = res.velocity.copy()
+        v1[system.fixed] = 0.0
     stress = state.stress
     if system.elastic:
         stress = stress + np.einsum("nij,nj->ni", system.emat, d[:, 6:])
@@ -143,7 +142,9 @@ def advance(system: BlockSystem, state: State, res: StepResult, dt: float) -> St
         time=state.time + dt, step=state.step + 1, dt=state.dt, last_dt=state.last_dt,
         memory=_memory(system, state, res, still), last_d=d, deepest=deepest,
         energies=_work(system, state, res, dt), contact_energy=stored,
-        diagnostics=diagnostics, asleep=state.asleep, quiet=state.quiet, drift=state.drift)
+        diagnostics=diagnostics, asleep=state.asleep, quiet=state.quiet, drift=state.drift,
+        workspace=state.workspace)
+    after.cache["vertices"] = vertices
     if system.bolts is not None:
         _advance_bolts(system, state, after, d)
     ratio = system.controls.dynamic_ratio

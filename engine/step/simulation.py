@@ -102,7 +102,9 @@ class Simulation:
                 drift = sleep.check_wake(system, state, res)
                 clock = _time.perf_counter()
                 after = advance(system, state, res, attempt.dt)
+                clock = state.diagnostics.tick("update", clock)
                 after = settle_contacts(system, state, res, after, attempt.dt)
+                clock = state.diagnostics.tick("damping", clock)
                 sleep.update(system, res, after, attempt.dt, drift)
                 energy.check_step(system, state, after)
                 break

@@ -205,7 +205,7 @@ def carry_state(full: Model, old: BlockSystem, state: State, old_keep: np.ndarra
     energies = dict(state.energies)
     energies["removed_energy"] = energies.get("removed_energy", 0.0) + leaving
     new = dataclasses.replace(
-        state, **arrays, memory=memory, energies=energies, cache={},
+        state, **arrays, memory=memory, energies=energies, cache={}, workspace={},
         contact_energy=state.contact_energy - mem.spring_energy(
             old.kn, old.ks, np.flatnonzero(~kept_contact)),
         **_bolt_arrays(state, bolt_rows))

@@ -70,6 +70,71 @@ def contact_loads(f: np.ndarray, dof_map: np.ndarray, bi: np.ndarray, bj: np.nda
     return fric_mag, fric
 
 
+@nb.njit(cache=True, inline="always")
+def _contact_force(k: int, normal: np.ndarray, d0: np.ndarray, mode: np.ndarray,
+                   shear0: np.ndarray, offset: np.ndarray, tangent: np.ndarray,
+                   nstar: np.ndarray, tan_phi: np.ndarray, kn: float, ks: float,
+                   cn: np.ndarray, dt: float, force: np.ndarray, fric_mag: np.ndarray,
+                   fric: np.ndarray) -> None:
+    """Contact `k`'s force on block i into `force[k]` and its friction into `fric_mag[k]`,
+    `fric[k]` (a closed contact; :func:`contact_loads`'s expressions)."""
+    n0, n1, n2 = normal[k, 0], normal[k, 1], normal[k, 2]
+    fn = -kn * d0[k] - cn[k] * max(d0[k], 0.0) / dt
+    force[k, 0], force[k, 1], force[k, 2] = fn * n0, fn * n1, fn * n2
+    if mode[k] == LOCKED:
+        r0 = shear0[k, 0] + offset[k, 0]
+        r1 = shear0[k, 1] + offset[k, 1]
+        r2 = shear0[k, 2] + offset[k, 2]
+        rn = r0 * n0 + r1 * n1 + r2 * n2
+        force[k, 0] -= ks * (r0 - rn * n0)
+        force[k, 1] -= ks * (r1 - rn * n1)
+        force[k, 2] -= ks * (r2 - rn * n2)
+    else:
+        fm = tan_phi[k] * nstar[k]
+        fric_mag[k] = fm
+        for r in range(3):
+            fric[k, r] = fm * tangent[k, r]
+            force[k, r] -= fric[k, r]
+
+
+@nb.njit(cache=True, parallel=True)
+def contact_loads_threads(f: np.ndarray, dof_map: np.ndarray, bi: np.ndarray,
+                          bj: np.ndarray, ti: np.ndarray, tj: np.ndarray, normal: np.ndarray,
+                          d0: np.ndarray, mode: np.ndarray, shear0: np.ndarray,
+                          offset: np.ndarray, tangent: np.ndarray, nstar: np.ndarray,
+                          tan_phi: np.ndarray, kn: float, ks: float, cn: np.ndarray,
+                          dt: float, ptr: np.ndarray, entries: np.ndarray
+                          ) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`contact_loads` on numba's threads: each contact's force, then each block's
+    loads from its contacts in contact order (`ptr`, `entries`: each block's contacts,
+    :func:`engine.dynamics._assembly_kernels.row_contacts` of `bi`, `bj`), so that every
+    unknown's sum is the serial one, bit for bit."""
+    c, _, d = ti.shape
+    fric_mag = np.zeros(c)
+    fric = np.zeros((c, 3))
+    force = np.zeros((c, 3))
+    for k in nb.prange(c):
+        if mode[k] != OPEN:
+            _contact_force(k, normal, d0, mode, shear0, offset, tangent, nstar, tan_phi, kn,
+                           ks, cn, dt, force, fric_mag, fric)
+    for blk in nb.prange(len(ptr) - 1):
+        for t in range(ptr[blk], ptr[blk + 1]):
+            k, role = entries[t] >> 1, entries[t] & 1
+            if mode[k] == OPEN:
+                continue
+            for q in range(d):
+                i = dof_map[blk, q]
+                if i < 0:
+                    continue
+                if role == 0:
+                    f[i] += ti[k, 0, q] * force[k, 0] + ti[k, 1, q] * force[k, 1] + ti[
+                        k, 2, q] * force[k, 2]
+                else:
+                    f[i] -= tj[k, 0, q] * force[k, 0] + tj[k, 1, q] * force[k, 1] + tj[
+                        k, 2, q] * force[k, 2]
+    return fric_mag, fric
+
+
 @nb.njit(cache=True)
 def patch_bonds(d0: np.ndarray, normal: np.ndarray, dr: np.ndarray, shear0: np.ndarray,
                 offset: np.ndarray, mode: np.ndarray, tangent: np.ndarray,

@@ -178,10 +178,8 @@ def damp_contacts(system: BlockSystem, before: State, res: StepResult, after: St
     cn = np.where(ring_n[rings], cn, 0.0)
     cshear = np.where(ring_t[rings], cshear, 0.0)
     bi, bj = sub.block_i, sub.block_j
-    ti = np.ascontiguousarray(
-        asm.displacement_matrices(sub.point_i, before.centroid[bi])[:, :, :nd])
-    tj = np.ascontiguousarray(
-        asm.displacement_matrices(sub.point_j, before.centroid[bj])[:, :, :nd])
+    ti = asm.point_matrices(sub.point_i, before.centroid, bi, nd)
+    tj = asm.point_matrices(sub.point_j, before.centroid, bj, nd)
     mass = mass_matrices(system, after)
     plan = asm.plan_system(system.block_row, np.ascontiguousarray(mass[:, :nd, :nd]), bi, bj,
                            ti, tj, sub.normal)

@@ -29,12 +29,13 @@ from engine.contact.solution import StepResult
 from engine.contact.solvers._open_close_kernels import (
     FINAL_SLIDE,
     contact_loads,
+    contact_loads_threads,
     step_results,
     update_modes,
 )
 from engine.contact.solvers._open_close_kernels import initial_modes as _initial_modes
 from engine.dynamics import assembly as asm
-from engine.dynamics._assembly_kernels import relative_displacement
+from engine.dynamics._assembly_kernels import row_contacts
 from engine.dynamics.block_terms import block_dissipation, block_terms, bolt_links, kinetic_energy
 from engine.dynamics.motion import mass_properties
 from engine.dynamics.solver import BlockJacobi, SolveError, make_solver
@@ -116,6 +117,8 @@ class _Terms:
     resolution: np.ndarray  # (c,) m: gaps within it are round-off (contact_round_off)
     patch: np.ndarray
     n_patch: int
+    #: each block's contacts (row_contacts of bi, bj), when the loads run on threads
+    blocks: tuple[np.ndarray, np.ndarray] | None = None
 
 
 def block_masses(system: BlockSystem, state: State) -> np.ndarray:
@@ -188,15 +191,14 @@ def _terms(system: BlockSystem, state: State, contacts: ContactSet,
     cn, _ = contact_damping(system, state, bi, bj)
     return _Terms(
         bi=bi, bj=bj, normal=contacts.normal, d0=contacts.gap, shear0=shear0,
-        ti=np.ascontiguousarray(asm.displacement_matrices(
-            contacts.point_i, state.centroid[bi])[:, :, :nd]),
-        tj=np.ascontiguousarray(asm.displacement_matrices(
-            contacts.point_j, state.centroid[bj])[:, :, :nd]),
+        ti=asm.point_matrices(contacts.point_i, state.centroid, bi, nd),
+        tj=asm.point_matrices(contacts.point_j, state.centroid, bj, nd),
         dmap=np.ascontiguousarray(system.dof_map[:, :nd]), tan_phi=system.tan_phi[jm],
         cohesion_force=system.cohesion[jm] * patches.share,
         tension_force=system.tension[jm] * patches.share,
         cn=cn, resolution=round_off_gaps(system, state, contacts), patch=patches.patch,
-        n_patch=len(patches))
+        n_patch=len(patches),
+        blocks=row_contacts(system.n, bi, bj) if asm.threaded(len(bi)) else None)
 
 
 @dataclass
@@ -239,10 +241,14 @@ class _LinearSystem:
     last cycle warm-starts the next."""
 
     def __init__(self, system: BlockSystem, kb: np.ndarray, t: _Terms, dt: float,
-                 links: tuple[np.ndarray, ...] | None = None) -> None:
+                 links: tuple[np.ndarray, ...] | None = None,
+                 workspace: dict | None = None) -> None:
         self.system, self.kb, self.t, self.dt = system, kb, t, dt
         #: two-point springs between free blocks that are not contacts (rock bolts)
         self.links = links
+        #: the run's workspace (`State.workspace`): the last step's plan, whose pattern the
+        #: step's K keeps while its contacts join the same blocks
+        self.workspace = {} if workspace is None else workspace
         self.plan: asm.SystemPlan | None = None
         self.solver = None
         self.key: tuple[bytes, bytes] | None = None
@@ -258,18 +264,22 @@ class _LinearSystem:
             return False
         s, t = self.system, self.t
         kn, ks = (s.kn + cn / self.dt) * closed, s.ks * locked
+        fresh = self.plan is None
+        last = self.workspace.get("plan") if fresh else None
         if self.links is None:
             if self.plan is None:
                 self.plan = asm.plan_system(s.block_row, self.kb, t.bi, t.bj, t.ti, t.tj,
-                                            t.normal)
+                                            t.normal, last=last)
         else:
             bi, bj, ti, tj, axis, ka, ksb = self.links
             if self.plan is None:
                 self.plan = asm.plan_system(
                     s.block_row, self.kb, np.concatenate([t.bi, bi]),
                     np.concatenate([t.bj, bj]), np.concatenate([t.ti, ti]),
-                    np.concatenate([t.tj, tj]), np.concatenate([t.normal, axis]))
+                    np.concatenate([t.tj, tj]), np.concatenate([t.normal, axis]), last=last)
             kn, ks = np.concatenate([kn, ka]), np.concatenate([ks, ksb])
+        if fresh:
+            self.workspace["plan"] = self.plan.pattern()
         k, kdiag = self.plan.matrix(kn, ks)
         try:
             self.solver = make_solver(k, s.ndof, kdiag, self.jacobi, self.plan.components)
@@ -317,14 +327,15 @@ def _cycle(system: BlockSystem, state: State, t: _Terms, m: _Modes, lin: _Linear
         clock = diag.tick("assembly", clock)
     # contact forces on block i (on j the opposite), as generalized loads
     f = f_block.copy()
-    fric_mag, fric = contact_loads(f, t.dmap, t.bi, t.bj, t.ti, t.tj, t.normal, t.d0, m.mode,
-                                   t.shear0, m.offset, m.tangent, m.nstar, t.tan_phi,
-                                   system.kn, system.ks, m.cn, dt)
+    args = (f, t.dmap, t.bi, t.bj, t.ti, t.tj, t.normal, t.d0, m.mode, t.shear0, m.offset,
+            m.tangent, m.nstar, t.tan_phi, system.kn, system.ks, m.cn, dt)
+    fric_mag, fric = (contact_loads(*args) if t.blocks is None
+                      else contact_loads_threads(*args, *t.blocks))
     clock = diag.tick("assembly", clock)
     x = lin.solve(f)
     diag.solves += 1
     clock = diag.tick("solve", clock)
-    dr = relative_displacement(x, t.dmap, t.bi, t.bj, t.ti, t.tj)
+    dr = asm.relative_motion(x, t.dmap, t.bi, t.bj, t.ti, t.tj)
     out = update_modes(t.d0, t.normal, dr, t.shear0, m.offset, m.mode, m.tangent, m.broken,
                        m.reopenings, m.switches, t.tan_phi, t.tension_force,
                        t.cohesion_force, fric_mag, m.fric_prev, system.kn, system.ks, m.cn,
@@ -469,7 +480,7 @@ def open_close_iteration(system: BlockSystem, state: State, contacts: ContactSet
     t = _terms(system, state, contacts, patches, start.shear)
     broken0 = start.broken.copy()
     m = _start(system, start, t)
-    lin = _LinearSystem(system, kb, t, dt, bolt_links(system, state))
+    lin = _LinearSystem(system, kb, t, dt, bolt_links(system, state), state.workspace)
     max_changes = system.controls.max_open_close_iterations
     for it in range(1, FRICTION_ITERATIONS_PER_CHANGE * (max_changes + 1) + 1):
         was_sliding = m.mode == SLIDING
