@@ -33,6 +33,23 @@ LMGC90_GRAVITY = (0.0, 0.0, -9.81)
 #: compas_lmgc90's Fortran wrapper, wrap_lmgc90_compas.f90): tolerance, norm, relaxation,
 #: sweeps between convergence checks, checks at most
 NLGS_SETTINGS = "tol 1.666e-4 (QM/16), relaxation 0.1, a check every 50 sweeps, ≤ 500 checks"
+#: how the binding detects contacts: STO, "explicit" (the contacts found at the first step
+#: are kept for the whole run: masonry that barely moves), or re-detected every step
+#: (`redetect`, set through the Fortran module's own setter, which the binding does not expose)
+DETECTION = {False: "STO explicit (contacts of the first step kept)",
+             True: "STO re-detected every step"}
+
+
+def _redetect_every_step() -> None:
+    """Switch LMGC90's STO detection from explicit (contacts found once) to every step: the
+    PRPRx module's setter, called through ctypes on the binding's own library (the binding
+    fixes the choice in `initialize` and exposes no setter). Call after `initialize`."""
+    import ctypes
+
+    from compas_lmgc90 import _lmgc90
+
+    lib = ctypes.CDLL(_lmgc90.__file__)  # the loaded library: same module variables
+    lib.__prprx_MOD_sto_set_explicit_detection_prprx(ctypes.byref(ctypes.c_int(0)))
 
 
 @dataclass
@@ -145,8 +162,10 @@ def export_errors(model: Model, scene: LmgcScene) -> dict[str, float]:
 
 def start(scene: LmgcScene, theta: float = 0.5, alert: float = 1e-3,
           offsets: np.ndarray | None = None,
-          forces: dict[int, dict[int, float]] | None = None) -> tuple[Any, Any]:
-    """Build `scene` in LMGC90 (its compiled binding) and return `(solver, initial state)`.
+          forces: dict[int, dict[int, float]] | None = None,
+          redetect: bool = False) -> tuple[Any, Any]:
+    """Build `scene` in LMGC90 (its compiled binding) and return `(solver, initial state)`;
+    `redetect`: contacts detected every step (:data:`DETECTION`).
 
     `offsets (n, 3)` m moves block k by offsets[k] (the verification spreads the blocks
     apart); `forces[k][dof]` adds a constant driven force (dofs 1–3, N, global) or moment
@@ -157,6 +176,8 @@ def start(scene: LmgcScene, theta: float = 0.5, alert: float = 1e-3,
     forces = forces or {}
     s = _lmgc90.LMGC90Solver()
     s.initialize(scene.dt, theta, False)
+    if redetect:
+        _redetect_every_step()
     s.add_one_tact_behav("iqsc0", "IQS_CLB", [scene.friction])
     densities = sorted({b.density for b in scene.blocks})
     name = {d: f"s{i + 1:04d}" for i, d in enumerate(densities)}
@@ -210,6 +231,30 @@ def motion_summary(mass: np.ndarray, inertia: np.ndarray, disp: np.ndarray,
             "displacements": disp.round(9).tolist()}
 
 
+def deepest_overlap(model: Model, centroids: np.ndarray, turns: np.ndarray) -> float:
+    """How deep (m) a vertex of one block lies inside another when each block k is moved to
+    `centroids[k]` turned by `turns[k]` from where the model has it: the same check, by our
+    geometry, of both engines' end states (a missed contact shows as a deep overlap)."""
+    verts, planes = [], []
+    for k, b in enumerate(model.blocks):
+        p = b.polyhedron
+        rel = p.vertices - p.centroid
+        verts.append(centroids[k] + rel[p.surface_vertex_ids] @ turns[k].T)
+        first = centroids[k] + rel[p.face_indices[p.face_indptr[:-1]]] @ turns[k].T
+        normals = p.face_normals @ turns[k].T
+        planes.append((normals, np.einsum("ij,ij->i", normals, first)))
+    lo = np.array([v.min(axis=0) for v in verts])
+    hi = np.array([v.max(axis=0) for v in verts])
+    deepest = 0.0
+    for i in range(len(verts)):
+        near = np.flatnonzero(np.all(lo[i] <= hi, axis=1) & np.all(lo <= hi[i], axis=1))
+        for j in near[near != i]:
+            normals, offsets = planes[j]
+            inside = (offsets[None, :] - verts[i] @ normals.T).min(axis=1)
+            deepest = max(deepest, float(inside.max()))
+    return deepest
+
+
 def inertia_tensors(model: Model, rotations: np.ndarray | None = None) -> tuple[np.ndarray,
                                                                                  np.ndarray]:
     """Masses `(n,)` kg and global inertia tensors `(n, 3, 3)` of the model's blocks, turned
@@ -226,11 +271,12 @@ def inertia_tensors(model: Model, rotations: np.ndarray | None = None) -> tuple[
     return np.array(mass), inertia_a
 
 
-def run(builder: str, seconds: float, theta: float = 0.5) -> dict[str, Any]:
+def run(builder: str, seconds: float, redetect: bool = False, theta: float = 0.5,
+        cap: float = 1800.0) -> dict[str, Any]:
     """Run the model `builder` (an expression over benchmarks.pile's builders) in LMGC90 for
-    `seconds` of simulated time at the model's Δt: the wall of the stepping loop (each step
-    also copies the contacts into Python: the binding returns them), and what
-    :func:`motion_summary` reports. Call in a process of its own."""
+    `seconds` of simulated time at the model's Δt (stopped after `cap` s of wall): the wall
+    of the stepping loop (each step also copies the contacts into Python: the binding
+    returns them), and what :func:`motion_summary` reports. Call in a process of its own."""
     import compas_lmgc90
 
     from benchmarks.pile import pile_model, rock_mass_model  # noqa: F401 (the builders)
@@ -238,7 +284,7 @@ def run(builder: str, seconds: float, theta: float = 0.5) -> dict[str, Any]:
     model = eval(builder)  # one of the benchmark's builder expressions
     t0 = time.perf_counter()
     scene = export_model(model)
-    s, init = start(scene, theta)
+    s, init = start(scene, theta, redetect=redetect)
     setup = time.perf_counter() - t0
     free = np.array([not b.fixed for b in scene.blocks])
     c0 = np.array(init.init_bodies, float)
@@ -246,10 +292,14 @@ def run(builder: str, seconds: float, theta: float = 0.5) -> dict[str, Any]:
     centroids = np.array([b.polyhedron.centroid for b in model.blocks])
     size = np.array([b.polyhedron.volume ** (1 / 3) for b in model.blocks])
     n = int(round(seconds / scene.dt))
-    prev_c, prev_f, contacts, walls, deepest = c0, f0, [], [], 0.0
+    prev_c, prev_f, contacts, walls, deepest, pairs = c0, f0, [], [], 0.0, 0
     t1, cpu1 = time.perf_counter(), time.process_time()
     r = prev_r = None
+    status = "completed"
     for _ in range(n):
+        if time.perf_counter() - t1 > cap:
+            status = f"stopped: wall cap {cap:.0f} s"
+            break
         prev_r = r
         walls.append(time.perf_counter())
         r = s.compute_one_step()
@@ -258,6 +308,8 @@ def run(builder: str, seconds: float, theta: float = 0.5) -> dict[str, Any]:
         deepest = max(deepest, -min(gaps, default=0.0))
     wall, cpu = time.perf_counter() - t1, time.process_time() - cpu1
     step_walls = np.diff([*walls, t1 + wall])
+    pairs = len({tuple(sorted(p)) for p in r.interaction_bodies})
+    done = len(step_walls)
     c1 = np.array(r.bodies, float)
     f1 = np.array(r.body_frames, float).reshape(-1, 3, 3)
     if prev_r is not None:
@@ -267,13 +319,17 @@ def run(builder: str, seconds: float, theta: float = 0.5) -> dict[str, Any]:
     turn = f1.transpose(0, 2, 1) @ f0
     step_turn = f1.transpose(0, 2, 1) @ prev_f
     mass, inertia = inertia_tensors(model, turn)
-    out = {"engine": "LMGC90", "solver": "LMGC90", "builder": builder,
+    overlap = deepest_overlap(model, c1, turn)
+    out = {"engine": "LMGC90", "solver": "LMGC90 redetect" if redetect else "LMGC90",
+           "builder": builder, "detection": DETECTION[redetect],
            "blocks": int(free.sum()), "dt": scene.dt, "theta": theta,
-           "steps": n, "simulated_s": n * scene.dt, "wall_s": wall, "cpu_s": cpu,
-           "setup_s": setup,
-           "per_step_s": wall / max(n, 1), "per_sim_second_s": wall / max(n * scene.dt, 1e-12),
+           "steps": done, "simulated_s": done * scene.dt, "wall_s": wall, "cpu_s": cpu,
+           "setup_s": setup, "per_step_s": wall / max(done, 1),
+           "per_sim_second_s": wall / max(done * scene.dt, 1e-12),
            "mean_dt": scene.dt, "iterations_mean": None, "contacts_mean": float(
-               np.mean(contacts or [0])), "max_penetration_m": deepest, "status": "completed",
+               np.mean(contacts or [0])), "contacts_end": contacts[-1] if contacts else 0,
+           "pairs_end": pairs, "max_penetration_m": deepest, "overlap_end_m": overlap,
+           "status": status,
            "centroid_error": float(np.max(np.linalg.norm(c0 - centroids, axis=1) / size)),
            "version": compas_lmgc90.__version__, "law": "IQS_CLB", "friction": scene.friction,
            "nlgs": NLGS_SETTINGS, "step_walls_s": step_walls.round(4).tolist()}
@@ -340,9 +396,9 @@ def in_subprocess(*args: str, timeout: float = 3600.0) -> dict[str, Any]:
 
 
 def main(argv: list[str]) -> None:
-    """`run BUILDER SECONDS [THETA]` or `verify BUILDER`: one RESULT line of JSON."""
+    """`run BUILDER SECONDS [redetect]` or `verify BUILDER`: one RESULT line of JSON."""
     if argv[0] == "run":
-        res = run(argv[1], float(argv[2]), *(float(x) for x in argv[3:4]))
+        res = run(argv[1], float(argv[2]), redetect=argv[3:4] == ["redetect"])
     elif argv[0] == "verify":
         res = verify(argv[1])
     else:
