@@ -21,7 +21,9 @@ import json
 import subprocess
 import sys
 import time
+from collections.abc import Callable
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -40,9 +42,11 @@ WALL_CAP = 1800.0
 OUT = Path(__file__).parent / "results" / "contact_solvers.json"
 
 
-def one(builder: str, solver: str, steps: int, seconds: float | None = None) -> dict:
+def one(builder: str, solver: str, steps: int, seconds: float | None = None,
+        probe: Callable[[Any], dict] | None = None) -> dict:
     """Step the case `builder` under `solver` (in this process) `steps` times, or through
-    `seconds` of simulated time; WALL_CAP stops it."""
+    `seconds` of simulated time; WALL_CAP stops it. `probe(sim)`, called after the timed
+    loop, adds its keys to the row (benchmarks.bench_lmgc90: where the blocks went)."""
     import warnings
 
     warnings.simplefilter("ignore")
@@ -58,7 +62,7 @@ def one(builder: str, solver: str, steps: int, seconds: float | None = None) -> 
     setup = time.perf_counter() - t0
     its, krylov, contacts, resid, status, message = [], [], [], [], "completed", ""
     sim.state.diagnostics.timings.clear()
-    t1 = time.perf_counter()
+    t1, cpu1 = time.perf_counter(), time.process_time()
     while (sim.state.time < seconds - 1e-9 if seconds else sim.state.step < steps):
         if time.perf_counter() - t1 > WALL_CAP:
             status, message = "stopped", f"wall cap {WALL_CAP:.0f} s"
@@ -73,12 +77,12 @@ def one(builder: str, solver: str, steps: int, seconds: float | None = None) -> 
         if res.residual is not None:
             resid.append(res.residual)
         contacts.append(len(res.contacts))
-    wall = time.perf_counter() - t1
+    wall, cpu = time.perf_counter() - t1, time.process_time() - cpu1
     n = max(sim.state.step, 1)
     tm = sim.state.diagnostics.timings
     asleep = 0 if sim.state.asleep is None else int(sim.state.asleep.sum())
     return {"blocks": int((~sim.system.fixed).sum()), "solver": solver, "setup_s": setup,
-            "steps": sim.state.step, "simulated_s": sim.state.time, "wall_s": wall,
+            "steps": sim.state.step, "simulated_s": sim.state.time, "wall_s": wall, "cpu_s": cpu,
             "per_step_s": wall / n, "per_sim_second_s": wall / max(sim.state.time, 1e-12),
             "mean_dt": sim.state.time / n, "iterations_mean": float(np.mean(its or [0])),
             "iterations_max": int(np.max(its or [0])),
@@ -88,7 +92,7 @@ def one(builder: str, solver: str, steps: int, seconds: float | None = None) -> 
             "residual_max": float(np.max(resid)) if resid else None, "contacts_mean": float(
                 np.mean(contacts or [0])), "asleep_end": asleep, "status": status,
             "message": message[:200], "rss_peak_mb": peak_rss_mb(),
-            **{f"t_{p}": tm.get(p, 0.0) / n for p in PHASES}}
+            **{f"t_{p}": tm.get(p, 0.0) / n for p in PHASES}, **(probe(sim) if probe else {})}
 
 
 def accuracy() -> list[dict]:

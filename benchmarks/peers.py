@@ -102,21 +102,23 @@ def mujoco_pile(n: int, dt: float = 1e-3, duration: float = 1.0) -> dict[str, An
 
 
 def lmgc90_incline_point(dt: float, phi_deg: float = 20.0) -> dict[str, Any]:
-    """One LMGC90 (compas_lmgc90, NSCD with IQS_CLB Coulomb law) incline run, 1 s."""
-    from compas_lmgc90.solver import Solver
+    """One LMGC90 (compas_lmgc90's binding, NSCD with IQS_CLB Coulomb law) incline run, 1 s
+    (driven as `benchmarks.lmgc90` drives it: no COMPAS needed)."""
+    from benchmarks.lmgc90 import LmgcBlock, LmgcScene, start
 
-    s = Solver(dt=dt, theta=0.5, density=2600.0)
-    s.geometry_from_v_f([_box_vf(-DOWN_DIP - STRIKE - UP_NORMAL, [22.0, 3.0, 1.0]),
-                         _box_vf(np.zeros(3), [1.0, 1.0, 1.0])], density=2600.0)
-    s.v_drvdof[0] = {i: np.zeros([1, 6]) for i in range(1, 7)}  # slab held
-    s.contact_law("IQS_CLB", math.tan(math.radians(phi_deg)), alert=1e-3)
-    s.preprocess()
-    c0 = np.array(s.init_coor[1], float).copy()
+    blocks = []
+    for k, (origin, size) in enumerate([(-DOWN_DIP - STRIKE - UP_NORMAL, [22.0, 3.0, 1.0]),
+                                        (np.zeros(3), [1.0, 1.0, 1.0])]):
+        vf = _box_vf(origin, size)  # quads, outward: two triangles each
+        tris = [[f[0], f[i], f[i + 1]] for f in vf["faces"] for i in (1, 2)]
+        blocks.append(LmgcBlock(np.array(vf["vertices"]), np.array(tris), 2600.0, k == 0))
+    s, init = start(LmgcScene(blocks, math.tan(math.radians(phi_deg)), dt), theta=0.5)
+    c0 = np.array(init.init_bodies[1], float)
     n = int(round(1.0 / dt))
     t0 = time.perf_counter()
     r = None
     for _ in range(n):
-        r = s.lmgc90.compute_one_step()
+        r = s.compute_one_step()
     wall = time.perf_counter() - t0
     dist = float((np.array(r.bodies[1], float) - c0) @ DOWN_DIP)
     exact = 0.5 * A_INCLINE * (n * dt) ** 2
@@ -228,7 +230,7 @@ def run_peers(out: Path, full: bool) -> dict[str, Any]:
                 print(f"  LMGC90 dt={dt:g} err={rows[-1]['rel_error']:.2e}", flush=True)
             except (RuntimeError, subprocess.SubprocessError) as exc:
                 notes["LMGC90"] = f"run failed: {exc}"
-        notes.setdefault("LMGC90", "installed (pip install compas-lmgc90), re-run here")
+        notes.setdefault("LMGC90", "installed (pip install --no-deps compas-lmgc90), re-run here")
     except ImportError:
         notes["LMGC90"] = "not installed: run benchmarks/setup_peers.sh"
     if shutil.which("yade"):
