@@ -50,7 +50,6 @@ def _contact(k: int, dr0: float, dr1: float, dr2: float, normal: np.ndarray,
         fn = -kn * g
         hn = kn
         energy += 0.5 * kn * g * g
-    hs = hn  # the spring's part: what the cap μN follows (its dashpot does not press)
     e = a[k] - g
     if e > 0.0 and cprime[k] > 0.0:
         fn += cprime[k] * e
@@ -84,7 +83,7 @@ def _contact(k: int, dr0: float, dr1: float, dr2: float, normal: np.ndarray,
         nn = (n0, n1, n2)
         uu = (u0, u1, u2)
         # the cap's dependence on the normal force (sliding, pressed, coupled Newton)
-        cn = mu[k] * hs if (hw > 0.0 and len(mu) > 0 and hs > 0.0 and g < 0.0) else 0.0
+        cn = mu[k] * hn if (hw > 0.0 and len(mu) > 0 and fn > 0.0) else 0.0
         for p in range(3):
             for q in range(3):
                 eye = 1.0 if p == q else 0.0
