@@ -27,6 +27,7 @@ import numpy as np
 
 from benchmarks import (
     bench_contact_solvers,
+    bench_lmgc90,
     bench_work,
     cases,
     components,
@@ -457,6 +458,9 @@ def write_report(out: Path, report: Path, meta: dict[str, Any]) -> None:
                                                 h.load_json(out, "trust_complementarity"))
               if cs else
               "## 7. Contact solvers side by side\n\n(section not run)", ""]
+    lm = h.load_json(out, "lmgc90")
+    parts += [bench_lmgc90.report_part(lm) if lm else
+              "## 7b. LMGC90 on the same cut rock mass\n\n(section not run)", ""]
     wk = h.load_json(out, "work")
     parts += [bench_work.report_part(wk) if wk else
               "## 8. The work around the contact solve\n\n(section not run)", ""]

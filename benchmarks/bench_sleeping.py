@@ -64,15 +64,39 @@ def one(duration: float, sleep_velocity: float) -> dict:
     while sim.state.time < duration - 1e-9:
         if clock is None and sim.state.time >= start - 1e-9:
             clock, steps0 = time.perf_counter(), sim.state.step
-        sim.step()
+        res = sim.step()
     wall = time.perf_counter() - clock
+    weak_blocks, weak_contacts = _not_holding(sim, res)
     asleep = 0 if sim.state.asleep is None else int(sim.state.asleep.sum())
     moved = np.linalg.norm(sim.state.centroid - sim.system.c0, axis=1)
     return {"sleep_velocity": sleep_velocity, "wall_s": wall,
             "steps": sim.state.step - steps0, "asleep_end": asleep,
             "free_blocks": int((~sim.system.fixed).sum()),
             "sliders_moved_m": float(moved[-SLIDERS:].min()),
-            "wakes": sim.state.diagnostics.wakes}
+            "wakes": sim.state.diagnostics.wakes,
+            "contacts_end": int(np.sum(np.maximum(res.contacts.block_i, res.contacts.block_j)
+                                       < sim.system.n - SLIDERS - 1)),
+            "blocks_not_holding_end": weak_blocks, "contacts_not_holding_end": weak_contacts}
+
+
+def _not_holding(sim, res) -> tuple[int, int]:  # noqa: ANN001 (a Simulation, a StepResult)
+    """At the end: the standing mass's free blocks that fail sleeping's holding test, and
+    its contacts that make them fail it (carrying a force, not stuck below the rim by the
+    sleep margin)."""
+    from engine.step import sleep
+
+    system, cs = sim.system, res.contacts
+    holding = sleep._holding(system, sim.state, res)
+    shear = np.linalg.norm(res.shear_force, axis=1)
+    n = res.normal_force
+    rim = system.tan_phi[cs.joint_material] * np.maximum(n, 0.0)
+    weight = np.where(system.fixed, np.inf, sleep._weights(system, sim.state))
+    wake = sleep.WAKE_RATIO * np.minimum(weight[cs.block_i], weight[cs.block_j])
+    rim = np.minimum((1.0 - sleep.SLEEP_MARGIN) * rim, rim - 2.0 * wake)
+    ok = (cs.mode == sleep.LOCKED) & (shear <= rim) & (n >= 0.0)
+    mass = np.arange(system.n) < system.n - SLIDERS - 1  # not the ramp and its cubes
+    weak = ((n != 0.0) | (shear > 0.0)) & ~ok & mass[cs.block_i] & mass[cs.block_j]
+    return int((~holding & ~system.fixed & mass).sum()), int(weak.sum())
 
 
 def main() -> None:

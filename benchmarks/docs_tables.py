@@ -83,8 +83,20 @@ def sleeping_table() -> str:
     for r in data["rows"]:
         lines.append(f"| {'on' if r['sleep_velocity'] > 0 else 'off'} | {r['wall_s']:.2f} | "
                      f"{r['asleep_end']} of {r['free_blocks']} |")
-    lines += ["", f"Sleeping costs {data['ratio_sleeping_to_awake']:.2f} of the run without "
-                  "it."]
+    r_on = next(r for r in data["rows"] if r["sleep_velocity"] > 0)
+    if r_on["asleep_end"]:
+        lines += ["", f"Sleeping costs {data['ratio_sleeping_to_awake']:.2f} of the run "
+                      "without it."]
+    else:
+        lines += ["", f"No block slept, so the ratio of the two walls "
+                      f"({data['ratio_sleeping_to_awake']:.2f}) is the machine's noise, not "
+                      "a saving: see below why the standing mass stays awake."]
+        if "blocks_not_holding_end" in r_on:
+            lines += ["", f"At the end of the run with sleeping on, "
+                          f"{r_on['contacts_not_holding_end']:,} of the standing mass's "
+                          f"{r_on['contacts_end']:,} contacts, in "
+                          f"{r_on['blocks_not_holding_end']} blocks, fail sleeping's holding "
+                          "test."]
     return "\n".join(lines)
 
 
