@@ -28,7 +28,7 @@ def solvers_table() -> str:
     data = _load("contact_solvers.json")
     if not data:
         return "(not measured yet: `python -m benchmarks.bench_contact_solvers 10`)"
-    lines = ["Measured in one run on this machine's 2 cores "
+    lines = ["Measured in one run on this machine's 2 cores, shared with other work "
              "(`python -m benchmarks.bench_contact_solvers 10`, "
              "`benchmarks/results/contact_solvers.json`; REPORT.md section 7 has every phase):",
              "", "| case | solver | error | s per step | iterations per step (median) | "
@@ -40,7 +40,8 @@ def solvers_table() -> str:
         if r.get("status") == "error":
             lines.append(f"| {r['case']} | {r['solver']} | | | | | failed |")
         elif r["solver"] == "MuJoCo":
-            lines.append(f"| {r['case']} | MuJoCo | | {r['wall_s'] / r['steps']:.4f} | | "
+            apart = " (run apart, after)" if r.get("note") else ""
+            lines.append(f"| {r['case']} | MuJoCo{apart} | | {r['wall_s'] / r['steps']:.4f} | | "
                          f"1 ms | {r['per_sim_second_s']:.3g} |")
         else:
             its = r.get("iterations_median", r["iterations_mean"])
