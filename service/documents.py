@@ -589,11 +589,3 @@ def parse_measurements(text: str, path: str) -> tuple[list[float], list[float]]:
     return dips, ddirs
 
 
-def _is_number(text: str) -> bool:
-    try:
-        float(text)
-    except ValueError:
-        return False
-    return True
-
-
