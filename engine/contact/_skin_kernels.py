@@ -35,6 +35,17 @@ def _segment_meets(a: np.ndarray, b: np.ndarray, lo: np.ndarray, hi: np.ndarray,
 
 
 @nb.njit(cache=True, nogil=True)
+def _push(buf: np.ndarray, n: int, value: int) -> np.ndarray:
+    """`buf` with `value` at index `n` (its first `n` entries kept), doubled when full."""
+    if n == len(buf):
+        grown = np.empty(2 * len(buf), dtype=buf.dtype)
+        grown[:n] = buf[:n]
+        buf = grown
+    buf[n] = value
+    return buf
+
+
+@nb.njit(cache=True, nogil=True)
 def candidate_features(pa: np.ndarray, pb: np.ndarray, x: np.ndarray,
                        piece_block: np.ndarray, pv_start: np.ndarray, pv_count: np.ndarray,
                        pv_vtx: np.ndarray, pv_surface: np.ndarray, e_start: np.ndarray,
@@ -50,9 +61,8 @@ def candidate_features(pa: np.ndarray, pb: np.ndarray, x: np.ndarray,
     npairs = len(pa)
     v_ptr = np.zeros(npairs + 1, dtype=np.int64)
     e_ptr = np.zeros(npairs + 1, dtype=np.int64)
-    cap_v, cap_e = 16 * npairs + 16, 24 * npairs + 16
-    v_list = np.empty(cap_v, dtype=np.int64)
-    e_list = np.empty(cap_e, dtype=np.int64)
+    v_list = np.empty(16 * npairs + 16, dtype=np.int64)
+    e_list = np.empty(24 * npairs + 16, dtype=np.int64)
     nv = ne = 0
     for k in range(npairs):
         r = grow[piece_block[pa[k]]] + grow[piece_block[pb[k]]]
@@ -63,24 +73,14 @@ def candidate_features(pa: np.ndarray, pb: np.ndarray, x: np.ndarray,
                 if not pv_surface[pv] or not _segment_meets(x[pv_vtx[pv]], x[pv_vtx[pv]], lo,
                                                             hi, r):
                     continue
-                if nv == cap_v:
-                    cap_v *= 2
-                    grown = np.empty(cap_v, dtype=np.int64)
-                    grown[:nv] = v_list[:nv]
-                    v_list = grown
-                v_list[nv] = pv
+                v_list = _push(v_list, nv, pv)
                 nv += 1
             for e in range(e_start[p], e_start[p] + e_count[p]):
                 if not e_real[e]:
                     continue
                 if not _segment_meets(x[e_vtx[e, 0]], x[e_vtx[e, 1]], lo, hi, r):
                     continue
-                if ne == cap_e:
-                    cap_e *= 2
-                    grown = np.empty(cap_e, dtype=np.int64)
-                    grown[:ne] = e_list[:ne]
-                    e_list = grown
-                e_list[ne] = e
+                e_list = _push(e_list, ne, e)
                 ne += 1
         v_ptr[k + 1] = nv
         e_ptr[k + 1] = ne
