@@ -87,15 +87,9 @@ def _not_holding(sim, res) -> tuple[int, int]:  # noqa: ANN001 (a Simulation, a 
 
     system, cs = sim.system, res.contacts
     holding = sleep._holding(system, sim.state, res)
-    shear = np.linalg.norm(res.shear_force, axis=1)
-    n = res.normal_force
-    rim = system.tan_phi[cs.joint_material] * np.maximum(n, 0.0)
-    weight = np.where(system.fixed, np.inf, sleep._weights(system, sim.state))
-    wake = sleep.WAKE_RATIO * np.minimum(weight[cs.block_i], weight[cs.block_j])
-    rim = np.minimum((1.0 - sleep.SLEEP_MARGIN) * rim, rim - 2.0 * wake)
-    ok = (cs.mode == sleep.LOCKED) & (shear <= rim) & (n >= 0.0)
     mass = np.arange(system.n) < system.n - SLIDERS - 1  # not the ramp and its cubes
-    weak = ((n != 0.0) | (shear > 0.0)) & ~ok & mass[cs.block_i] & mass[cs.block_j]
+    weak = (sleep.weak_contacts(system, sim.state, res) & mass[cs.block_i]
+            & mass[cs.block_j])
     return int((~holding & ~system.fixed & mass).sum()), int(weak.sum())
 
 

@@ -222,10 +222,21 @@ def _weights(system: BlockSystem, state: State) -> np.ndarray:
 
 
 def _holding(system: BlockSystem, state: State, res: StepResult) -> np.ndarray:
-    """Blocks `(n,)` whose contacts all hold with a margin: stuck, the shear force within
-    SLEEP_MARGIN of the friction rim and, so that no change too small to wake a block can
-    make one of its contacts slip, below it by twice the wake threshold (WAKE_RATIO of the
-    lighter block's weight); a bonded contact stuck (its capacity is its patch's)."""
+    """Blocks `(n,)` whose contacts all hold with a margin (none of :func:`weak_contacts`)."""
+    cs = res.contacts
+    weak = weak_contacts(system, state, res)
+    out = np.ones(system.n, dtype=bool)
+    out[cs.block_i[weak]] = False
+    out[cs.block_j[weak]] = False
+    return out
+
+
+def weak_contacts(system: BlockSystem, state: State, res: StepResult) -> np.ndarray:
+    """Contacts `(c,) bool` of the step that carry a force and do not hold with a margin:
+    stuck, the shear force within SLEEP_MARGIN of the friction rim and, so that no change
+    too small to wake a block can make one slip, below it by twice the wake threshold
+    (WAKE_RATIO of the lighter block's weight); a bonded contact stuck holds (its capacity
+    is its patch's)."""
     cs = res.contacts
     jm = cs.joint_material
     shear = np.linalg.norm(res.shear_force, axis=1)
@@ -238,11 +249,7 @@ def _holding(system: BlockSystem, state: State, res: StepResult) -> np.ndarray:
     carrying = (n != 0.0) | (shear > 0.0)
     ok = (cs.mode == LOCKED) & (shear <= rim) & (n >= 0.0)
     ok |= bonded & (cs.mode == LOCKED)  # a bond holds it (its capacity is per patch)
-    weak = carrying & ~ok
-    out = np.ones(system.n, dtype=bool)
-    out[cs.block_i[weak]] = False
-    out[cs.block_j[weak]] = False
-    return out
+    return carrying & ~ok
 
 
 def _island_quiet(system: BlockSystem, res: StepResult, quiet: np.ndarray) -> np.ndarray:
