@@ -72,9 +72,12 @@ def shot(b: dict[str, Any], page: Any, name: str, **kw: Any) -> None:
 
 
 def download(page: Any, path: Path) -> dict[str, Any]:
-    with page.expect_download() as d:
-        page.click("#download-scene")
-    d.value.save_as(str(path))
+    try:
+        with page.expect_download() as d:
+            page.click("#download-scene")
+        d.value.save_as(str(path))
+    except Exception as exc:  # playwright's timeout does not say which scene
+        raise AssertionError(f"no download of {path.name}: {exc}") from exc
     return json.loads(path.read_text())
 
 

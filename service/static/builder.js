@@ -597,14 +597,18 @@ $("open-scene").addEventListener("change", async (e) => {
   e.target.value = "";
 });
 
+// The last download's object URL lives until the next download: revoked on a timer, a
+// browser slow to start the download (a loaded machine) found it gone and saved nothing.
+let downloadURL = null;
 $("download-scene").addEventListener("click", () => {
   const text = `${JSON.stringify(scene, null, 2)}\n`;
+  if (downloadURL) URL.revokeObjectURL(downloadURL);
+  downloadURL = URL.createObjectURL(new Blob([text], { type: "application/json" }));
   const a = document.createElement("a");
-  a.href = URL.createObjectURL(new Blob([text], { type: "application/json" }));
+  a.href = downloadURL;
   const name = String(scene.name || "scene").replace(/[^A-Za-z0-9_.-]+/g, "_") || "scene";
   a.download = `${name}.json`;
   a.click();
-  setTimeout(() => URL.revokeObjectURL(a.href), 1000);
 });
 
 // ------------------------------------------------------------------ start
