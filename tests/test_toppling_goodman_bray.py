@@ -23,6 +23,7 @@ from engine.step.simulation import STATUS_COMPLETED, run
 from schemas.convert import build_model
 from service.documents import fos_controls
 from tests.test_cutting import check_no_overlap
+from tests.test_solver_seams import SOLVERS
 
 EXAMPLES = Path(__file__).resolve().parents[1] / "examples"
 SCENE = EXAMPLES / "toppling_goodman_bray.json"
@@ -134,15 +135,18 @@ STILL = 5e-4
 
 @pytest.mark.slow
 @pytest.mark.ci
-def test_modes_below_the_critical_angle(built) -> None:
+@pytest.mark.parametrize("solver", SOLVERS)
+def test_modes_below_the_critical_angle(built, solver: str) -> None:
     """At φ = 31° (the scene as written, 3° below critical) over 0.5 s: C1–C3 slide (toe
-    slip, no rotation), C4–C10 topple (rotation about a toe that stays put), C11–C12 stand.
-    In 0.5 s the sliding columns move ~3 cm and the toppling tops 4–11 cm, while standing
-    ones only settle on their springs (µm): the thresholds are an order of magnitude from
-    both. Measured: C1–C3 slide 30.2 mm; tops 43.0 (C4) … 105.4 (C8), 42.6 mm (C10) with
-    toe slip ≤ 0.66 mm; C11–C12 < 0.01 mm."""
+    slip, no rotation), C4–C10 topple (rotation about a toe that stays put), C11–C12 stand,
+    under every contact solver. In 0.5 s the sliding columns move ~3 cm and the toppling
+    tops 4–11 cm, while standing ones only settle on their springs (µm): the thresholds are
+    an order of magnitude from both. Measured (open-close / newton / complementarity):
+    C1–C3 slide 30.2 / 29.5 / 29.6 mm; tops 43.0 / 42.9 / 43.0 (C4) … 105.4 / 103.7 / 103.9
+    (C8), 42.6 / 42.6 / 42.3 mm (C10) with toe slip ≤ 0.66 mm; C11–C12 < 0.01 mm."""
     m = dataclasses.replace(built.model, controls=dataclasses.replace(
-        built.model.controls, duration=0.5, record_interval=10, record_contacts=False))
+        built.model.controls, duration=0.5, record_interval=10, record_contacts=False,
+        contact_solver=solver))
     rec = _LastFrame()
     res = run(m, recorder=rec)
     assert res.status == STATUS_COMPLETED, res.message
@@ -161,18 +165,23 @@ def test_modes_below_the_critical_angle(built) -> None:
 
 @pytest.mark.slow
 @pytest.mark.ci
-def test_strength_reduction_brackets_the_limit_equilibrium_angle(built) -> None:
+@pytest.mark.parametrize("solver", SOLVERS)
+def test_strength_reduction_brackets_the_limit_equilibrium_angle(built, solver: str) -> None:
     """The strength-reduction criterion (sustained acceleration, the scene's window)
-    holds 1° above the limit-equilibrium critical angle and fails 1° below: the factor of
-    safety's φc is within 1° of 33.93°. Two trials instead of the whole bisection.
-    Measured: single trials fail at 33.5° and 34.0° and hold at 34.5°, 35° and 36°, and
-    `polydda fos` gives 33.95° (F 0.8926 in 9 trials). Before contacts that chatter were
-    held at their friction limit, the columns crept on up to 35.5°."""
+    holds 1° above the limit-equilibrium critical angle and fails 1° below, under every
+    contact solver: the factor of safety's φc is within 1° of 33.93°. Two trials instead of
+    the whole bisection. Measured (open-close): single trials fail at 33.5° and 34.0° and
+    hold at 34.5°, 35° and 36°, and `polydda fos` gives 33.95° (F 0.8926 in 9 trials).
+    Before contacts that chatter were held at their friction limit, the columns crept on up
+    to 35.5°. Newton and complementarity: at rest with every contact stuck 16 / 10 ms after
+    release at 34.93°; past the limit displacement 0.66 / 0.67 s after release at 32.93°."""
     phi_c = _le_critical_deg()
+    model = dataclasses.replace(built.model, controls=dataclasses.replace(
+        built.model.controls, contact_solver=solver))
     controls = fos_controls(built)
     tan = np.tan(np.radians(SCENE_PHI))
-    above = trial(built.model, tan / np.tan(np.radians(phi_c + 1.0)), controls)
-    below = trial(built.model, tan / np.tan(np.radians(phi_c - 1.0)), controls)
+    above = trial(model, tan / np.tan(np.radians(phi_c + 1.0)), controls)
+    below = trial(model, tan / np.tan(np.radians(phi_c - 1.0)), controls)
     assert not above.failed, above
     assert below.failed, below
 
