@@ -454,8 +454,10 @@ def write_report(out: Path, report: Path, meta: dict[str, Any]) -> None:
     parts += [components.components_part(cp) if cp else
               "## 6. Cutting and contact detection on their own\n\n(section not run)", ""]
     cs = h.load_json(out, "contact_solvers")
+    maps = {solver: h.load_json(out, f"trust_{solver}") for solver in ("complementarity",
+                                                                         "newton")}
     parts += [bench_contact_solvers.report_part(cs, "contact_solvers.png",
-                                                h.load_json(out, "trust_complementarity"))
+                                                {k: v for k, v in maps.items() if v})
               if cs else
               "## 7. Contact solvers side by side\n\n(section not run)", ""]
     lm = h.load_json(out, "lmgc90")

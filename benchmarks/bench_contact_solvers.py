@@ -190,9 +190,9 @@ def _maybe(value: float | None) -> str:
     return "" if value is None else f"{value:.1e}"
 
 
-def report_part(data: dict, chart: str, trust: dict | None = None) -> str:
-    """REPORT.md's section on the contact solvers (with the stability map v2 under the
-    complementarity solve, `trust`, when it has been run)."""
+def report_part(data: dict, chart: str, trust: dict[str, dict] | None = None) -> str:
+    """REPORT.md's section on the contact solvers, with the stability map v2 under each
+    solver other than the default that has been run (`trust`: solver → its map)."""
     lines = ["## 7. Contact solvers side by side (issues 29, 38)", "",
              "`python -m benchmarks.bench_contact_solvers 10`: every solver on the same "
              "cases in one run (asked Δt 1 ms, each case in its own process: the rock masses "
@@ -230,14 +230,16 @@ def report_part(data: dict, chart: str, trust: dict | None = None) -> str:
     if data.get("note"):
         lines += ["", f"Note: {data['note']}."]
     lines += ["", f"![contact solvers](results/{chart})", ""]
-    if trust:
-        from collections import Counter
+    from collections import Counter
 
-        counts = Counter((r["case"], r["verdict"]) for r in trust["rows"])
-        lines += ["Stability map v2 under the complementarity solve "
-                  "(`python -m benchmarks.bench_trust_complementarity`: the stay-put scenes "
-                  "over Δt 0.1 / 1 / 10 ms × four starts, the examples at ×0.1 / ×1 / ×10 "
-                  "their Δt):", "", "| scene | verdict | runs |", "|---|---|---|"]
+    for solver, runs in (trust or {}).items():
+        counts = Counter((r["case"], r["verdict"]) for r in runs["rows"])
+        springs = " × penalty 1e9 / 1e11 / 1e14 N/m" if solver in ("open_close", "newton") else ""
+        lines += [f"Stability map v2 under `{solver}` (`python -m "
+                  f"benchmarks.bench_trust_complementarity {solver}`: the stay-put scenes "
+                  f"over Δt 0.1 / 1 / 10 ms × four starts{springs}, the examples at ×0.1 / "
+                  "×1 / ×10 their Δt" + (" and penalty" if springs else "") + "):", "",
+                  "| scene | verdict | runs |", "|---|---|---|"]
         lines += [f"| {case} | {verdict} | {n} |" for (case, verdict), n in
                   sorted(counts.items())]
         lines.append("")
