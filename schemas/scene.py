@@ -643,7 +643,9 @@ class AnalysisSpec(_Model):
                     "open-close iteration on penalty springs), 'newton' (the same springs, "
                     "the step as the minimum of its potential by Newton's method: no mode "
                     "guessing, Δt held where open-close cuts it) or 'complementarity' (one "
-                    "solve of the frictional contact problem, no springs)")
+                    "solve of the frictional contact problem, no springs: rigid contacts, "
+                    "so a block wedged between neighbours can be held by forces springs "
+                    "would not give it; docs/contact-solvers.md)")
     contact_tolerance: Annotated[float, Field(gt=0, le=1e-2)] = Field(
         _CONTROLS.contact_tolerance,
         description="complementarity solve: change of the blocks' motion in a sweep, "

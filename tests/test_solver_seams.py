@@ -265,11 +265,11 @@ def test_staged_tunnel_under_every_solver(solver: str) -> None:
 
 @pytest.mark.slow
 @pytest.mark.xfail(strict=True, raises=AssertionError, reason=(
-    "the complementarity solve holds toe block T99 for 0.15 s: its rigid contacts are "
-    "statically indeterminate where it touches the fixed blocks T3, T4 and T11 at three "
-    "faces, and the warm-started Gauss-Seidel keeps lateral forces of 40-120 kN whose "
-    "friction wedges it (springs, open-close and Newton, give each contact its force by its "
-    "overlap and it slides at once): docs/contact-solvers.md"))
+    "the complementarity solve holds toe block T99 for about 0.15 s: from the first step "
+    "its near-vertical face on T108 is pressed with ~300 kN, balanced by friction on the "
+    "bedding, and that face's friction holds it; rigid contacts accept the self-stress and "
+    "the warm start keeps it (springs, open-close and Newton, give a face force only by its "
+    "overlap, and sliding opens it): docs/contact-solvers.md"))
 def test_terrain_toe_blocks_slide_under_complementarity() -> None:
     """examples/terrain_slope.json under the complementarity solve: both toe blocks slide
     ½ g (sin 40° − cos 40° tan 38°) t² within 1 % at 0.5 s, as they do under the other
