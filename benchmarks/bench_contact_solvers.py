@@ -232,13 +232,22 @@ def report_part(data: dict, chart: str, trust: dict[str, dict] | None = None) ->
     lines += ["", f"![contact solvers](results/{chart})", ""]
     from collections import Counter
 
+    from benchmarks import trust as map_v2
+    from benchmarks.bench_trust_complementarity import SPRINGS
+
+    dts = " / ".join(f"{dt * 1e3:g}" for dt in map_v2.QUICK_DTS)
+    factors = " / ".join(f"×{f:g}" for f in map_v2.QUICK_FACTORS)
+    penalties = " / ".join(f"{k:.0e}".replace("e+0", "e").replace("e+", "e")
+                           for k in map_v2.QUICK_PENALTIES)
     for solver, runs in (trust or {}).items():
         counts = Counter((r["case"], r["verdict"]) for r in runs["rows"])
-        springs = " × penalty 1e9 / 1e11 / 1e14 N/m" if solver in ("open_close", "newton") else ""
+        springs = solver in SPRINGS
         lines += [f"Stability map v2 under `{solver}` (`python -m "
                   f"benchmarks.bench_trust_complementarity {solver}`: the stay-put scenes "
-                  f"over Δt 0.1 / 1 / 10 ms × four starts{springs}, the examples at ×0.1 / "
-                  "×1 / ×10 their Δt" + (" and penalty" if springs else "") + "):", "",
+                  f"over Δt {dts} ms × {len(map_v2.STARTS)} starts"
+                  + (f" × penalty {penalties} N/m" if springs else "")
+                  + f", the examples at {factors} their Δt"
+                  + (" and penalty" if springs else "") + "):", "",
                   "| scene | verdict | runs |", "|---|---|---|"]
         lines += [f"| {case} | {verdict} | {n} |" for (case, verdict), n in
                   sorted(counts.items())]
