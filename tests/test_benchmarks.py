@@ -108,7 +108,7 @@ def test_stability_map_v2_verdicts() -> None:
 def test_the_shared_piles_live_in_the_repository() -> None:
     """The piles the step digests, the stages and the benchmarks run are the scenes the peers'
     numbers refer to: byte for byte the shared JSON (SHA-256 listed in their README), read
-    from benchmarks/scenes/ (a fresh clone has no ../shared)."""
+    from benchmarks/scenes/, the copies the repository keeps."""
     import gzip
     import hashlib
     import re
